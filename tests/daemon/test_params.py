@@ -1,0 +1,84 @@
+import pytest
+import yaml
+
+from uav_depth.daemon.errors import ConfigError, FileFormatError
+from uav_depth.daemon.params import (DEFAULT_PARAMS, SPECS, dump_params, load_params, params_from_dict,
+                                     read_provenance, save_params)
+
+
+def test_defaults_are_opencv_sample_values():
+    sg = DEFAULT_PARAMS.sgbm
+    bs = sg.block_size
+    assert (sg.p1, sg.p2) == (8 * 3 * bs * bs, 32 * 3 * bs * bs)
+    assert (sg.disp12_max_diff, sg.uniqueness_ratio, sg.speckle_window_size, sg.speckle_range) == (1, 10, 100, 32)
+    assert (DEFAULT_PARAMS.wls.lambda_, DEFAULT_PARAMS.wls.sigma_color) == (8000.0, 1.5)
+
+
+def test_round_trip_with_provenance(tmp_path):
+    params = DEFAULT_PARAMS.replace(**{"sgbm.p1": 100, "sgbm.p2": 5000, "wls.lambda": 1234.5})
+    path = save_params(params, tmp_path / "p.yaml", provenance={"metric": "mse", "seed": 3})
+    assert load_params(path) == params
+    assert read_provenance(path) == {"metric": "mse", "seed": 3}
+    assert not [p for p in tmp_path.iterdir() if p.name != "p.yaml"], "temp file left behind"
+
+
+def test_every_key_documented_with_default_that_validates():
+    assert params_from_dict({}) == DEFAULT_PARAMS
+    for spec in SPECS:
+        assert spec.check(spec.default) == spec.default
+
+
+def test_hash_changes_with_values():
+    assert DEFAULT_PARAMS.hash() != DEFAULT_PARAMS.replace(**{"sgbm.uniqueness_ratio": 11}).hash()
+
+
+BAD = [
+    ("mult16", {"sgbm": {"num_disparities": 40}}, "sgbm.num_disparities must be a positive multiple of 16, but got 40"),
+    ("odd", {"sgbm": {"block_size": 4}}, "sgbm.block_size must be odd, but got 4"),
+    ("range", {"sgbm": {"uniqueness_ratio": 101}}, "sgbm.uniqueness_ratio must be between 0 and 100, but got 101"),
+    ("p2-gt-p1", {"sgbm": {"p1": 500, "p2": 400}}, "sgbm.p2 must be greater than sgbm.p1 (500), but got 400"),
+    ("mode", {"sgbm": {"mode": "fast"}}, "sgbm.mode must be one of sgbm, sgbm_3way, hh, hh4, but got 'fast'"),
+    ("type", {"sgbm": {"p1": "big"}}, "sgbm.p1 must be a number (int), but got 'big'"),
+    ("float-int", {"sgbm": {"p1": 10.5}}, "sgbm.p1 must be an integer, but got 10.5"),
+    ("bool", {"wls": {"enabled": "yes"}}, "wls.enabled must be true or false, but got 'yes'"),
+    ("unknown-key", {"sgbm": {"p3": 1}}, "sgbm.p3 is not a known key"),
+    ("unknown-section", {"sgmb": {}}, "sgmb is not a known section"),
+    ("sigma-zero", {"wls": {"sigma_color": 0}}, "wls.sigma_color must be greater than 0, but got 0.0"),
+    ("nan", {"wls": {"lambda": float("nan")}}, "wls.lambda must be a finite number"),
+    ("section-not-map", {"sgbm": 5}, "sgbm must be a mapping, but got 5"),
+]
+
+
+@pytest.mark.parametrize("data,message", [b[1:] for b in BAD], ids=[b[0] for b in BAD])
+def test_bad_values_name_key_rule_value(tmp_path, data, message):
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError) as err:
+        load_params(path)
+    assert message in str(err.value)
+    assert str(path) in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("text,message", [("sgbm: [1, 2\n", "not valid YAML at line"),
+                                          ("- 1\n- 2\n", "must be a mapping of sections")],
+                         ids=["broken-yaml", "list"])
+def test_bad_files(tmp_path, text, message):
+    path = tmp_path / "params.yaml"
+    path.write_text(text)
+    with pytest.raises((ConfigError, FileFormatError), match=message):
+        load_params(path)
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(FileFormatError, match="parameter file not found"):
+        load_params(tmp_path / "nope.yaml")
+
+
+def test_save_refuses_nothing_invalid_and_keeps_old_file(tmp_path):
+    path = save_params(DEFAULT_PARAMS, tmp_path / "p.yaml")
+    before = path.read_text()
+    with pytest.raises(ConfigError):
+        DEFAULT_PARAMS.replace(**{"sgbm.block_size": 6})
+    assert path.read_text() == before
+    assert dump_params(DEFAULT_PARAMS) == before
