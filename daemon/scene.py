@@ -201,6 +201,15 @@ _TEX_M = {True: 0.25, False: 3.0}    # metres one bark / foliage texture tile sp
 _LIGHT = np.array([-0.4, -0.6, 0.7]) / np.linalg.norm([-0.4, -0.6, 0.7])   # toward the light
 
 
+def _wrap(x: np.ndarray) -> np.ndarray:
+    """``np.mod(x, _TEX_SIZE)`` bit for bit, about five times faster.
+
+    Dividing by a power of two and flooring are exact, so ``x - size * k`` is the
+    exact remainder rounded once, which is what numpy's fmod-and-adjust returns.
+    """
+    return x - float(_TEX_SIZE) * np.floor(x * (1.0 / _TEX_SIZE))
+
+
 class Scene:
     """A built scene: geometry and textures fixed by the config's seed; render any pose."""
 
@@ -211,6 +220,7 @@ class Scene:
                          _texture(rng, _TEX_SIZE, False)]
         self.cylinders = self._layout(rng)
         self.calibration = config.calibration
+        self._dirs_cache: tuple[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
 
     def _layout(self, rng: np.random.Generator) -> list[Cylinder]:
         c = self.config
@@ -254,39 +264,56 @@ class Scene:
         v = (np.arange(c.height, dtype=np.float32) - cy) / np.float32(c.focal_px)
         return u, v
 
-    def _render_view(self, origin: np.ndarray, rot: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Ray-cast one view. Returns (intensity float32 0..1-ish, depth m, labels)."""
+    def _directions(self, rot: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """World ray directions rot @ (u, v, 1), each (H, W) float32, read-only.
+
+        Both views share them, and the last rotation's are kept: a rig that flies
+        without turning (SITL's approach, benchmarks) computes them once.
+        """
+        key = np.asarray(rot, dtype=np.float64).tobytes()
+        if self._dirs_cache is not None and self._dirs_cache[0] == key:
+            return self._dirs_cache[1]
         c = self.config
         h, w = c.height, c.width
         u, v = self._rays()
-        # Ray direction in world = rot @ (u, v, 1); t along it is depth along the optical axis.
         dx = rot[0, 0] * u[None, :] + rot[0, 1] * v[:, None] + np.float32(rot[0, 2])
         dy = rot[1, 0] * u[None, :] + rot[1, 1] * v[:, None] + np.float32(rot[1, 2])
         dz = rot[2, 0] * u[None, :] + rot[2, 1] * v[:, None] + np.float32(rot[2, 2])
-        dx, dy, dz = (np.broadcast_to(a, (h, w)).astype(np.float32) for a in (dx, dy, dz))
-        depth = np.full((h, w), np.inf, np.float32)
+        dirs = tuple(np.broadcast_to(a, (h, w)).astype(np.float32) for a in (dx, dy, dz))
+        for a in dirs:
+            a.flags.writeable = False
+        self._dirs_cache = (key, dirs)
+        return dirs  # type: ignore[return-value]
+
+    def _render_view(self, origin: np.ndarray, rot: np.ndarray,
+                     dirs: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Ray-cast one view. Returns (intensity float32 0..1-ish, depth m, labels)."""
+        c = self.config
+        h, w = c.height, c.width
+        # Ray direction in world = rot @ (u, v, 1); t along it is depth along the optical axis.
+        dx, dy, dz = dirs if dirs is not None else self._directions(rot)
         labels = np.zeros((h, w), np.uint8)
-        intensity = np.zeros((h, w), np.float32)
 
         # Background plane z = Zbg in the world.
         zbg = c.background_distance_m
         with np.errstate(divide="ignore", invalid="ignore"):
             tb = (np.float32(zbg) - np.float32(origin[2])) / dz
         hit = np.isfinite(tb) & (tb > 0)
-        depth[hit] = tb[hit]
+        depth = np.where(hit, tb, np.float32(np.inf))
         px = origin[0] + tb * dx
         py = origin[1] + tb * dy
         scale = _TEX_SIZE / _TEX_M[False] * c.texture_scale
         tex = self._sample(2, px * scale, py * scale)
-        intensity[hit] = 0.55 * tex[hit] + 0.25
+        intensity = np.where(hit, 0.55 * tex + 0.25, np.float32(0.0))
 
         for cyl in self.cylinders:
-            self._cast_cylinder(cyl, origin, dx, dy, dz, depth, labels, intensity)
+            self._cast_cylinder(cyl, origin, rot, dx, dy, dz, depth, labels, intensity)
         return intensity, depth, labels
 
     def _sample(self, tex_id: int, tu: np.ndarray, tv: np.ndarray) -> np.ndarray:
-        mx = np.ascontiguousarray(np.mod(tu, _TEX_SIZE), dtype=np.float32)
-        my = np.ascontiguousarray(np.mod(tv, _TEX_SIZE), dtype=np.float32)
+        mx = np.ascontiguousarray(_wrap(tu), dtype=np.float32)
+        my = np.ascontiguousarray(_wrap(tv), dtype=np.float32)
         return cv2.remap(self.textures[tex_id], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
 
     def _sample_points(self, tex_id: int, tu: np.ndarray, tv: np.ndarray) -> np.ndarray:
@@ -298,13 +325,63 @@ class Scene:
         fold = lambda a: np.pad(a, (0, pad)).reshape(rows, cols)  # noqa: E731
         return self._sample(tex_id, fold(tu), fold(tv)).ravel()[:n]
 
-    def _cast_cylinder(self, cyl: Cylinder, o: np.ndarray, dx, dy, dz, depth, labels, intensity) -> None:
+    def _candidates(self, cyl: Cylinder, o: np.ndarray, rot: np.ndarray) -> np.ndarray | None:
+        """Flat indices of the pixels whose rays may hit ``cyl``; None means every pixel.
+
+        Conservative culling (why the renderer is fast): the axis is cut into pieces
+        about one radius long; each piece lies inside a sphere, and the sphere inside
+        an axis-aligned cube in camera coordinates. x/z and y/z are monotonic in each
+        coordinate for z > 0, so the cube's corners bound the piece's projection.
+        Boxes are widened by two pixels against float32 rounding in the hit test. A
+        piece that reaches the camera plane (z <= 0 somewhere) could project
+        anywhere: then every pixel is a candidate. The per-pixel arithmetic is the
+        same for candidates as before, so the image does not change.
+        """
+        c = self.config
+        h, w = c.height, c.width
+        n = max(1, math.ceil(cyl.length / cyl.radius))
+        step = cyl.length / n
+        rho = math.hypot(step / 2.0, cyl.radius)
+        centres = cyl.p0[None, :] + ((np.arange(n) + 0.5) * step)[:, None] * cyl.axis[None, :]
+        cam = (centres - o[None, :]) @ rot                     # rows: rot.T @ (C - o)
+        cx, cy = self.calibration.principal_point
+        zlo, zhi = cam[:, 2] - rho, cam[:, 2] + rho
+        front = zhi > 0                                         # pieces wholly behind cannot be hit (t > 0)
+        if np.any(front & (zlo <= 1e-6)):
+            return None
+        cam, zlo, zhi = cam[front], zlo[front], zhi[front]
+        if not len(cam):
+            return np.zeros(0, np.intp)
+        mask = np.zeros((h, w), bool)
+        margin = 2
+        bounds = []
+        for axis, centre, size in ((0, cx, w), (1, cy, h)):
+            corners = np.stack([(cam[:, axis] + sx * rho) / z for sx in (-1.0, 1.0) for z in (zlo, zhi)])
+            lo = np.floor(centre + c.focal_px * corners.min(axis=0)).astype(np.int64) - margin
+            hi = np.ceil(centre + c.focal_px * corners.max(axis=0)).astype(np.int64) + margin
+            bounds.append((np.clip(lo, 0, size), np.clip(hi + 1, 0, size)))
+        (j0, j1), (i0, i1) = bounds
+        for a, b, cc, d in zip(i0, i1, j0, j1):
+            if a < b and cc < d:
+                mask[a:b, cc:d] = True
+        return np.flatnonzero(mask)
+
+    def _cast_cylinder(self, cyl: Cylinder, o: np.ndarray, rot: np.ndarray, dx, dy, dz, depth, labels,
+                       intensity) -> None:
+        idx = self._candidates(cyl, o, rot)
+        if idx is None:
+            idx = np.arange(depth.size)
+        if not idx.size:
+            return
+        # Work on the candidate pixels only, as flat vectors: elementwise float32
+        # arithmetic gives the same value per pixel whatever the array's shape.
+        dxc, dyc, dzc = dx.ravel()[idx], dy.ravel()[idx], dz.ravel()[idx]
         a = cyl.axis.astype(np.float64)
         wv = o - cyl.p0
         wa = float(wv @ a)
         wp = wv - wa * a                                       # w perpendicular to the axis
-        da = dx * np.float32(a[0]) + dy * np.float32(a[1]) + dz * np.float32(a[2])
-        dpx, dpy, dpz = dx - da * np.float32(a[0]), dy - da * np.float32(a[1]), dz - da * np.float32(a[2])
+        da = dxc * np.float32(a[0]) + dyc * np.float32(a[1]) + dzc * np.float32(a[2])
+        dpx, dpy, dpz = dxc - da * np.float32(a[0]), dyc - da * np.float32(a[1]), dzc - da * np.float32(a[2])
         A = dpx * dpx + dpy * dpy + dpz * dpz
         B = 2.0 * (dpx * np.float32(wp[0]) + dpy * np.float32(wp[1]) + dpz * np.float32(wp[2]))
         C = np.float32(wp @ wp - cyl.radius ** 2)
@@ -315,15 +392,16 @@ class Scene:
         with np.errstate(invalid="ignore", divide="ignore"):
             t = (-B - np.sqrt(np.where(ok, disc, 0))) / (2.0 * A)
         s = wa + t * da
-        ok &= (t > 0) & (s >= 0) & (s <= cyl.length) & (t < depth)
+        ok &= (t > 0) & (s >= 0) & (s <= cyl.length) & (t < depth.ravel()[idx])
         if not ok.any():
             return
-        ys, xs = np.nonzero(ok)
-        tt = t[ys, xs]
-        hx = o[0] + tt * dx[ys, xs] - cyl.p0[0]
-        hy = o[1] + tt * dy[ys, xs] - cyl.p0[1]
-        hz = o[2] + tt * dz[ys, xs] - cyl.p0[2]
-        ss = s[ys, xs]
+        sel = np.flatnonzero(ok)
+        flat = idx[sel]
+        tt = t[sel]
+        hx = o[0] + tt * dxc[sel] - cyl.p0[0]
+        hy = o[1] + tt * dyc[sel] - cyl.p0[1]
+        hz = o[2] + tt * dzc[sel] - cyl.p0[2]
+        ss = s[sel]
         nx, ny, nz = hx - ss * a[0], hy - ss * a[1], hz - ss * a[2]     # radial vector, length r
         e1 = np.cross(a, [0.0, 0.0, 1.0])
         if np.linalg.norm(e1) < 1e-6:
@@ -336,9 +414,9 @@ class Scene:
         tv = (ss * scale).astype(np.float32)
         tex = self._sample_points(cyl.texture, tu, tv)
         shade = 0.35 + 0.65 * np.clip((nx * _LIGHT[0] + ny * _LIGHT[1] + nz * _LIGHT[2]) / cyl.radius, 0, 1)
-        depth[ys, xs] = tt
-        labels[ys, xs] = cyl.kind
-        intensity[ys, xs] = (cyl.albedo * (0.45 + 0.55 * tex) * shade).astype(np.float32)
+        depth.ravel()[flat] = tt
+        labels.ravel()[flat] = cyl.kind
+        intensity.ravel()[flat] = (cyl.albedo * (0.45 + 0.55 * tex) * shade).astype(np.float32)
 
     def _finish(self, intensity: np.ndarray, labels: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         c = self.config
@@ -361,8 +439,9 @@ class Scene:
         rot = np.asarray(pose.rotation, dtype=np.float64)
         o_left = np.asarray(pose.position, dtype=np.float64)
         o_right = o_left + rot @ np.array([self.config.baseline_m, 0.0, 0.0])
-        il, depth, labels = self._render_view(o_left, rot)
-        ir, _, labels_r = self._render_view(o_right, rot)
+        dirs = self._directions(rot)
+        il, depth, labels = self._render_view(o_left, rot, dirs)
+        ir, _, labels_r = self._render_view(o_right, rot, dirs)
         left = self._finish(il, labels, rng)
         right = self._finish(ir, labels_r, rng)
         with np.errstate(divide="ignore"):

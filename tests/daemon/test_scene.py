@@ -64,3 +64,44 @@ def test_bad_scene_config(key, value, msg):
 
 def test_time_render_reports_seconds():
     assert 0 < time_render(SceneConfig(width=160, height=120, focal_px=100.0), repeats=1) < 60
+
+
+def _turned(deg: float, position) -> Pose:
+    th = np.radians(deg)
+    rot = np.array([[np.cos(th), 0.0, np.sin(th)], [0.0, 1.0, 0.0], [-np.sin(th), 0.0, np.cos(th)]])
+    return Pose(rot, np.asarray(position, dtype=float))
+
+
+@pytest.mark.parametrize("pose", [Pose(), Pose.forward(0.4), _turned(12.0, [0.1, -0.05, 0.2]),
+                                  _turned(-25.0, [-0.2, 0.1, 0.0]), Pose.forward(1.05)],
+                         ids=["identity", "forward", "turned-right", "turned-left", "through-branch"])
+def test_culled_render_equals_full_frame_cast(monkeypatch, pose):
+    """Bounding-volume culling must never drop a hit: same pixels as casting every ray at every cylinder."""
+    cfg = SceneConfig(width=320, height=240, focal_px=200.0, branch_distance_m=1.0, n_branches=6, color=True, seed=9)
+    fast = Scene(cfg).render(pose, np.random.default_rng(3))
+    monkeypatch.setattr(Scene, "_candidates", lambda self, cyl, o, rot: None)
+    full = Scene(cfg).render(pose, np.random.default_rng(3))
+    assert fast.branch_mask.any()
+    for name in ("left", "right", "labels"):
+        assert np.array_equal(getattr(fast, name), getattr(full, name)), name
+    assert np.array_equal(fast.depth, full.depth)
+
+
+def test_rendering_twice_from_one_scene_is_repeatable():
+    """Cached ray directions must not leak between poses: A, B, A renders A's pixels again."""
+    scene = Scene(SceneConfig(width=160, height=120, focal_px=100.0, seed=2))
+    a = scene.render(Pose(), np.random.default_rng(0))
+    scene.render(_turned(10.0, [0.0, 0.0, 0.1]), np.random.default_rng(0))
+    again = scene.render(Pose(), np.random.default_rng(0))
+    assert np.array_equal(a.left, again.left) and np.array_equal(a.depth, again.depth)
+
+
+def test_texture_wrap_is_numpy_mod_bit_for_bit():
+    from uav_depth.daemon.scene import _TEX_SIZE, _wrap
+
+    rng = np.random.default_rng(0)
+    x = np.concatenate([rng.standard_normal(20000) * s for s in (1e-30, 1.0, 512.0, 1e6, 1e15)]
+                       + [np.arange(-2048, 2048, 0.25), np.array([-0.0, 0.0, -512.0, -1e-300, 1023.9999999999999])])
+    for dtype in (np.float64, np.float32):
+        xs = x.astype(dtype)
+        assert np.array_equal(_wrap(xs), np.mod(xs, _TEX_SIZE))
