@@ -26,6 +26,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "disparity": ("uav_depth.daemon.commands.disparity", "compute the disparity of one stereo pair"),
     "evaluate": ("uav_depth.tuning.commands.evaluate", "score the pipeline against reference disparity in a log"),
     "params": ("uav_depth.daemon.commands.params", "print the default parameter file or check one"),
+    "reference": ("uav_depth.tuning.commands.reference",
+                  "give logged frames a reference disparity (import one, or run an ONNX stereo network)"),
 }
 
 
