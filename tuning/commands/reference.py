@@ -29,7 +29,7 @@ def configure(p: argparse.ArgumentParser) -> None:
                                        "{session}; default {id} + the format's suffix")
     imp.add_argument("--format", choices=tuple(FORMAT_INFO),
                      help="; ".join(f"{k}: {doc}" for k, (_, _, doc) in FORMAT_INFO.items()) +
-                          " (default: from the pattern's suffix, .npy or .pfm)")
+                          " (default: from the pattern's suffix, .npy or .pfm; npy without a pattern)")
     imp.add_argument("--scale", type=float, help="stored value / scale = disparity in px (default: the format's, "
                                                  "256 for kitti-png, else 1)")
     imp.add_argument("--no-check", action="store_true", help="skip the SGBM scale check")

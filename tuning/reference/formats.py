@@ -114,7 +114,9 @@ FORMATS: dict[str, ReferenceFormat] = {name: ReferenceFormat(name, suffix, scale
 
 
 def format_for(name: str | None, pattern: str) -> ReferenceFormat:
-    """The format named, or the one the pattern's suffix implies (.npy, .pfm)."""
+    """The format named, or the one the pattern's suffix implies (.npy, .pfm); npy when neither is given."""
+    if name is None and not pattern:
+        return FORMATS["npy"]
     if name is not None:
         if name not in FORMATS:
             raise ConfigError("--format", f"must be one of {', '.join(FORMATS)}", name)

@@ -29,7 +29,8 @@ from .provenance import has_reference_to_keep, make_provenance, sha256_file, wri
 class ImportConfig:
     """How to find and read the reference files.
 
-    ``pattern`` defaults to ``{id}`` + the format's suffix. ``scale``: stored value
+    ``format`` defaults to the pattern's suffix (.npy, .pfm), or npy without a
+    pattern; ``pattern`` defaults to ``{id}`` + the format's suffix. ``scale``: stored value
     / scale = px (default: the format's). ``check``: run the SGBM scale check on up
     to ``check_frames`` frames; ``tolerance``: the ratio it accepts either way.
     """
