@@ -18,6 +18,9 @@ from .errors import CalibrationError, ConfigError, DependencyError, UavDepthErro
 #: Exit codes. EXIT_CONFIG is sysexits' EX_CONFIG: the systemd unit lists it in
 #: RestartPreventExitStatus so a typo in a config does not restart-loop.
 EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_CONFIG = 0, 1, 2, 130, 78
+#: sysexits' EX_UNAVAILABLE: `run` could not find its camera at start-up. Not in
+#: RestartPreventExitStatus, so systemd retries until the camera appears.
+EXIT_UNAVAILABLE = 69
 
 #: name -> (module, one-line help). Modules are relative to uav_depth.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -26,6 +29,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "disparity": ("uav_depth.daemon.commands.disparity", "compute the disparity of one stereo pair"),
     "evaluate": ("uav_depth.tuning.commands.evaluate", "score the pipeline against reference disparity in a log"),
     "params": ("uav_depth.daemon.commands.params", "print the default parameter file or check one"),
+    "run": ("uav_depth.daemon.commands.run", "the on-board daemon: stereo -> branch distance -> MAVLink DISTANCE_SENSOR"),
+    "sources": ("uav_depth.daemon.commands.sources", "list the frame sources run accepts (and probe for hardware)"),
     "reference": ("uav_depth.tuning.commands.reference",
                   "give logged frames a reference disparity (import one, or run an ONNX stereo network)"),
 }

@@ -1,0 +1,96 @@
+"""uav-depth run --config FILE: the on-board daemon (stereo -> branch distance -> MAVLink DISTANCE_SENSOR).
+
+Exit codes: 0 after a clean stop (SIGTERM, SIGINT, a replay that ended); 78
+(EX_CONFIG) when the config, calibration or parameter file is invalid, so systemd
+does not restart-loop on a typo; 69 (EX_UNAVAILABLE) when the camera is missing at
+start-up, so systemd may retry until it appears; 1 for other errors.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", metavar="FILE", help="run config (YAML); default $UAV_DEPTH_CONFIG")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="set a config key (dotted, YAML value), e.g. --set mavlink.rate_hz=25; wins over "
+                        "UAV_DEPTH_* environment variables and the file (repeatable)")
+    p.add_argument("--params-file", metavar="FILE", help="same as --set params_file=FILE")
+    p.add_argument("--mavlink-url", metavar="URL", help="same as --set mavlink.url=URL")
+    p.add_argument("--log-dir", metavar="DIR", help="same as --set logging.dir=DIR")
+    p.add_argument("--check", action="store_true", help="validate the config, print a summary and exit")
+    p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
+
+
+def _overrides(args: argparse.Namespace) -> dict:
+    from uav_depth.daemon.config import parse_value
+    from uav_depth.daemon.errors import ConfigError
+
+    out: dict = {}
+    for item in args.overrides:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError("--set", "must look like KEY=VALUE (mavlink.rate_hz=25)", item)
+        out[key.strip()] = parse_value(value)
+    for key, value in (("params_file", args.params_file), ("mavlink.url", args.mavlink_url),
+                       ("logging.dir", args.log_dir)):
+        if value is not None:
+            out[key] = value
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    import logging
+    import signal
+    import sys
+    import threading
+
+    from uav_depth.daemon.cli import EXIT_CONFIG, EXIT_ERROR, EXIT_UNAVAILABLE
+    from uav_depth.daemon.config import load_run_config
+    from uav_depth.daemon.errors import (CalibrationError, ConfigError, DependencyError, FileFormatError,
+                                         SourceError, UavDepthError)
+
+    # Plain lines for journald (it adds time and unit); no colours, no timestamps.
+    logging.basicConfig(level=getattr(logging, args.log_level.upper()), stream=sys.stderr,
+                        format="%(levelname)s %(name)s: %(message)s")
+    err = lambda exc: print(f"uav-depth run: error: {exc}", file=sys.stderr, flush=True)  # noqa: E731
+    try:
+        config = load_run_config(args.config, _overrides(args))
+    except (ConfigError, CalibrationError, FileFormatError) as exc:
+        err(exc)
+        return EXIT_CONFIG
+    if args.check:
+        print(f"config valid: {config.summary()}")
+        return 0
+
+    from uav_depth.daemon.service import Service
+
+    stop = threading.Event()
+    try:
+        service = Service(config)
+    except (ConfigError, CalibrationError, FileFormatError) as exc:
+        err(exc)
+        return EXIT_CONFIG
+    # Handlers only set events; the service's threads and main loop do the work.
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGUSR1, lambda *_: service.request_log_frame())
+    signal.signal(signal.SIGHUP, lambda *_: service.request_reload())
+    try:
+        report = service.run(stop)
+    except (ConfigError, CalibrationError, FileFormatError) as exc:
+        err(exc)
+        return EXIT_CONFIG
+    except SourceError as exc:
+        err(exc)
+        return EXIT_UNAVAILABLE
+    except DependencyError as exc:
+        err(exc)
+        return EXIT_CONFIG
+    except UavDepthError as exc:
+        err(exc)
+        return EXIT_ERROR
+    if service.ended:
+        logging.getLogger("uav_depth.service").info("source ended: %s", service.ended)
+    return 0 if report is not None else EXIT_ERROR

@@ -1,0 +1,534 @@
+"""The run config of ``uav-depth run``: one YAML file, validated once, frozen.
+
+Sections: ``source`` (which frames), ``calibration`` (file or inline), ``params_file``
+(the hot-reloaded stereo parameters), ``ranging`` (branch distance), ``mavlink``
+(DISTANCE_SENSOR output), ``logging`` (frames for tuning) and ``service``
+(lifecycle knobs). Every key is declared once in a :class:`Key` table with its
+type, bounds and meaning; the loader, the environment overrides and the README
+reference read those tables.
+
+Settings resolve, first wins: an explicit argument (``--set mavlink.url=...``), a
+``UAV_DEPTH_<SECTION>_<KEY>`` environment variable (``UAV_DEPTH_MAVLINK_RATE_HZ=25``,
+``UAV_DEPTH_PARAMS_FILE=...``), the config file, the default. Errors name the key
+path, the rule and the value, and where the value came from.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import re
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import yaml
+
+from .calibration import Calibration, calibration_from_dict, load_calibration
+from .errors import ConfigError, FileFormatError
+
+log = logging.getLogger("uav_depth.config")
+
+ENV_PREFIX = "UAV_DEPTH_"
+#: Environment variables with a meaning of their own (not a config key).
+ENV_RESERVED = ("UAV_DEPTH_CONFIG",)
+
+
+@dataclass(frozen=True)
+class Key:
+    """Declaration of one config key: type, default, bounds, meaning.
+
+    ``kind``: int, float, bool, str, path, roi (four ints x0 y0 x1 y1, px), any.
+    ``lo``/``hi`` are inclusive unless ``hi_open`` (value must be below ``hi``).
+    ``optional``: null is accepted (and is the default when ``default`` is None).
+    ``check``: an extra rule, returning the error text or None.
+    """
+
+    name: str
+    kind: str
+    default: Any
+    doc: str
+    lo: float | None = None
+    hi: float | None = None
+    hi_open: bool = False
+    choices: tuple[Any, ...] | None = None
+    optional: bool = False
+    check: Callable[[Any], str | None] | None = None
+
+    def accepted(self) -> str:
+        """Human text of what the key accepts (README table)."""
+        if self.choices:
+            text = " / ".join(str(c) for c in self.choices)
+        elif self.kind == "roi":
+            text = "[x0, y0, x1, y1] px"
+        elif self.lo is not None and self.hi is not None:
+            text = f"{_fmt(self.lo)}..{_fmt(self.hi)}" + (" (exclusive)" if self.hi_open else "")
+        elif self.lo is not None:
+            text = f">= {_fmt(self.lo)}"
+        else:
+            text = self.kind
+        return text + (", or null" if self.optional else "")
+
+    def validate(self, section: str, value: Any, source: str | None) -> Any:
+        key = f"{section}.{self.name}" if section else self.name
+        if value is None:
+            if self.optional:
+                return None
+            raise ConfigError(key, "is required", None, source)
+        kind = self.kind
+        if kind == "bool":
+            if not isinstance(value, bool):
+                raise ConfigError(key, "must be true or false", value, source)
+        elif kind in ("int", "float"):
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ConfigError(key, f"must be a number ({kind})", value, source)
+            if kind == "int":
+                if isinstance(value, float) and not value.is_integer():
+                    raise ConfigError(key, "must be an integer", value, source)
+                value = int(value)
+            else:
+                value = float(value)
+                if not math.isfinite(value):
+                    raise ConfigError(key, "must be a finite number", value, source)
+            lo, hi = self.lo, self.hi
+            if lo is not None and hi is not None:
+                ok = lo <= value < hi if self.hi_open else lo <= value <= hi
+                if not ok:
+                    rule = (f"must be at least {_fmt(lo)} and below {_fmt(hi)}" if self.hi_open
+                            else f"must be between {_fmt(lo)} and {_fmt(hi)}")
+                    raise ConfigError(key, rule, value, source)
+            elif lo is not None and value < lo:
+                raise ConfigError(key, f"must be at least {_fmt(lo)}", value, source)
+        elif kind in ("str", "path"):
+            if not isinstance(value, str) or not value:
+                raise ConfigError(key, "must be a non-empty string", value, source)
+            if kind == "path":
+                value = Path(os.path.expanduser(value))
+        elif kind == "roi":
+            if (not isinstance(value, (list, tuple)) or len(value) != 4
+                    or any(isinstance(v, bool) or not isinstance(v, int) for v in value)):
+                raise ConfigError(key, "must be four integers [x0, y0, x1, y1] in pixels", value, source)
+            x0, y0, x1, y1 = value
+            if not (0 <= x0 < x1 and 0 <= y0 < y1):
+                raise ConfigError(key, "must satisfy 0 <= x0 < x1 and 0 <= y0 < y1", list(value), source)
+            value = (x0, y0, x1, y1)
+        if self.choices is not None and value not in self.choices:
+            raise ConfigError(key, f"must be one of {', '.join(map(str, self.choices))}", value, source)
+        if self.check is not None:
+            problem = self.check(value)
+            if problem:
+                raise ConfigError(key, problem, value, source)
+        return value
+
+
+def _fmt(x: float) -> str:
+    return str(int(x)) if float(x).is_integer() else str(x)
+
+
+def section_values(keys: tuple[Key, ...], data: Any, section: str, source: str | None,
+                   extra: tuple[str, ...] = (), origin: Mapping[str, str] | None = None) -> dict[str, Any]:
+    """Validate one mapping against ``keys``: unknown keys are errors, missing ones take defaults.
+
+    ``origin`` maps a dotted key to where its value came from (an environment
+    variable, an argument); errors name it instead of ``source``.
+    """
+    origin = origin or {}
+    if data is None:
+        data = {}
+    if not isinstance(data, Mapping):
+        raise ConfigError(section, "must be a mapping", data, origin.get(section, source))
+    known = {k.name for k in keys}
+    for name in data:
+        if name not in known and name not in extra:
+            raise ConfigError(f"{section}.{name}",
+                              f"is not a known key (known: {', '.join(sorted(known | set(extra)))})",
+                              data[name], origin.get(f"{section}.{name}", source))
+    return {k.name: k.validate(section, data.get(k.name, k.default), origin.get(f"{section}.{k.name}", source))
+            for k in keys}
+
+
+# -- sections ---------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class RangingConfig:
+    """Branch ranging (see :mod:`uav_depth.daemon.ranging`)."""
+
+    roi: tuple[int, int, int, int] | None = None
+    min_valid_px: int = 100
+    min_confidence: float = 0.5
+    max_age_ms: float = 300.0
+    max_distance_m: float = 10.0
+    cluster_depth_m: float = 0.05
+    max_jump_rel: float = 0.2
+    confirm_frames: int = 2
+
+    KEYS = (
+        Key("roi", "roi", None, "region of interest in the rectified left image, px; null: the central third",
+            optional=True),
+        Key("min_valid_px", "int", 100, "fewest measured pixels the nearest object needs to count", 1, 10_000_000),
+        Key("min_confidence", "float", 0.5, "WLS confidence (0..1) a measured pixel needs to be used", 0.0, 1.0),
+        Key("max_age_ms", "float", 300.0,
+            "an estimate older than this (from frame capture) is never sent as valid; "
+            "ArduPilot drops a rangefinder after 500 ms", 1.0, 500.0, hi_open=True),
+        Key("max_distance_m", "float", 10.0, "farthest distance reported; farther objects count as no measurement",
+            0.05, 600.0),
+        Key("cluster_depth_m", "float", 0.05, "depth band behind the nearest surface that belongs to the same object",
+            0.001, 5.0),
+        Key("max_jump_rel", "float", 0.2, "a change larger than this fraction is held back until confirmed "
+            "(single-frame outlier rejection); 0 disables", 0.0, 10.0),
+        Key("confirm_frames", "int", 2, "consecutive agreeing frames that confirm a jump", 1, 100),
+    )
+
+
+_URL_SCHEMES = ("udpout", "udpin", "udp", "udpbcast", "tcp", "tcpin")
+
+
+def _check_url(url: str) -> str | None:
+    if url.startswith("/dev/") or re.match(r"^COM\d+$", url):
+        return None
+    scheme, _, rest = url.partition(":")
+    if scheme not in _URL_SCHEMES or not re.match(r"^[^:]+:\d+$", rest):
+        return ("must be a pymavlink connection string: udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT, "
+                "tcpin:HOST:PORT or a serial device (/dev/ttyACM0, with mavlink.baud)")
+    port = int(rest.rsplit(":", 1)[1])
+    if not 0 < port < 65536:
+        return "must name a port between 1 and 65535"
+    return None
+
+
+def _check_orientation(value: Any) -> str | None:
+    from .mavlink_out import orientation_code
+
+    try:
+        orientation_code(value)
+    except ValueError as exc:
+        return str(exc)
+    return None
+
+
+@dataclass(frozen=True)
+class MavlinkConfig:
+    """MAVLink 2 output (see :mod:`uav_depth.daemon.mavlink_out`)."""
+
+    url: str = "udpout:127.0.0.1:14550"
+    baud: int = 115200
+    rate_hz: float = 20.0
+    system_id: int = 1
+    component_id: int = 191
+    sensor_id: int = 1
+    sensor_type: str = "unknown"
+    orientation: Any = "forward"
+    signing_key_file: Path | None = None
+    target_system: int = 0
+    target_component: int = 0
+
+    KEYS = (
+        Key("url", "str", "udpout:127.0.0.1:14550", "pymavlink connection string (udpout, udpin, tcp, tcpin, serial)",
+            check=_check_url),
+        Key("baud", "int", 115200, "serial baud rate (serial devices only)", 1200, 12_000_000),
+        Key("rate_hz", "float", 20.0, "DISTANCE_SENSOR rate, Hz (fixed clock, independent of the stereo rate)",
+            2.0, 200.0),
+        Key("system_id", "int", 1, "our MAVLink system id (the vehicle's, so ground stations group us with it)",
+            1, 255),
+        Key("component_id", "int", 191, "our MAVLink component id (191 = MAV_COMP_ID_ONBOARD_COMPUTER)", 1, 255),
+        Key("sensor_id", "int", 1, "DISTANCE_SENSOR.id", 0, 255),
+        Key("sensor_type", "str", "unknown", "DISTANCE_SENSOR.type (MAV_DISTANCE_SENSOR)",
+            choices=("laser", "ultrasound", "infrared", "radar", "unknown")),
+        Key("orientation", "any", "forward", "DISTANCE_SENSOR.orientation: forward, back, left, right, up, down, "
+            "a MAV_SENSOR_ROTATION name (ROLL_180) or its number; must match RNGFND1_ORIENT",
+            check=_check_orientation),
+        Key("signing_key_file", "path", None, "MAVLink 2 signing key file (64 hex digits, 32 raw bytes, or a "
+            "passphrase hashed with SHA-256 as MAVProxy does); must not be readable by group or others",
+            optional=True),
+        Key("target_system", "int", 0, "autopilot system id for commands; 0: learn it from its HEARTBEAT", 0, 255),
+        Key("target_component", "int", 0, "autopilot component id for commands; 0: learn it", 0, 255),
+    )
+
+
+@dataclass(frozen=True)
+class LoggingConfig:
+    """Frame logging for tuning (see :mod:`uav_depth.daemon.framelog`)."""
+
+    dir: Path | None = None
+    every_n: int = 10
+    max_mb: float = 2000.0
+    queue_frames: int = 4
+
+    KEYS = (
+        Key("dir", "path", None, "directory that receives one session per run; null disables logging",
+            optional=True),
+        Key("every_n", "int", 10, "log every Nth processed frame; 0: only on demand (SIGUSR1)", 0, 1_000_000),
+        Key("max_mb", "float", 2000.0, "disk budget of the whole directory, MB; oldest sessions are removed first",
+            1.0, 10_000_000.0),
+        Key("queue_frames", "int", 4, "frames waiting for the writer; more are dropped, never waited for", 1, 1000),
+    )
+
+
+@dataclass(frozen=True)
+class ServiceConfig:
+    """Lifecycle knobs (see :mod:`uav_depth.daemon.service`)."""
+
+    shutdown_timeout_s: float = 3.0
+    frame_timeout_s: float = 2.0
+    first_frame_timeout_s: float = 30.0
+    reconnect_min_s: float = 0.5
+    reconnect_max_s: float = 10.0
+    status_interval_s: float = 5.0
+    stall_timeout_s: float = 10.0
+    params_poll_s: float = 1.0
+
+    KEYS = (
+        Key("shutdown_timeout_s", "float", 3.0, "shutdown gives up on unfinished work after this long", 0.1, 120.0),
+        Key("frame_timeout_s", "float", 2.0, "no frame for this long means the camera is lost", 0.05, 120.0),
+        Key("first_frame_timeout_s", "float", 30.0, "start-up fails if no frame is processed within this time",
+            0.5, 600.0),
+        Key("reconnect_min_s", "float", 0.5, "first camera reconnect delay (doubles up to reconnect_max_s)",
+            0.01, 60.0),
+        Key("reconnect_max_s", "float", 10.0, "longest camera reconnect delay", 0.01, 600.0),
+        Key("status_interval_s", "float", 5.0, "period of the status log line and sd_notify STATUS", 0.1, 3600.0),
+        Key("stall_timeout_s", "float", 10.0, "a frame in the stereo stage for longer than this is a stall: "
+            "WATCHDOG=1 stops so systemd can restart", 0.5, 3600.0),
+        Key("params_poll_s", "float", 1.0, "parameter file poll period (inotify wakes sooner when available)",
+            0.05, 60.0),
+    )
+
+
+SECTION_CLASSES: dict[str, type] = {"ranging": RangingConfig, "mavlink": MavlinkConfig,
+                                    "logging": LoggingConfig, "service": ServiceConfig}
+TOP_KEYS = ("source", "calibration", "params_file", *SECTION_CLASSES)
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """The whole validated run config. Build with :func:`load_run_config` or :func:`run_config_from_dict`."""
+
+    source: Any                         # the source's own frozen config (see sources.SOURCES)
+    calibration: Calibration | None = None
+    params_file: Path | None = None
+    ranging: RangingConfig = RangingConfig()
+    mavlink: MavlinkConfig = MavlinkConfig()
+    logging: LoggingConfig = LoggingConfig()
+    service: ServiceConfig = ServiceConfig()
+    origin: Mapping[str, str] = field(default_factory=dict, compare=False)   # key -> where it came from
+
+    @property
+    def source_kind(self) -> str:
+        return self.source.KIND
+
+    def summary(self) -> str:
+        return (f"source {self.source_kind}, mavlink {self.mavlink.url} at {self.mavlink.rate_hz:g} Hz, "
+                f"params {self.params_file or 'built-in defaults'}, "
+                f"logging {self.logging.dir or 'off'}")
+
+
+
+
+def _calibration(value: Any, base: Path | None, source: str | None) -> Calibration | None:
+    if value is None:
+        return None
+    if isinstance(value, Mapping):
+        return calibration_from_dict(value, source)
+    if isinstance(value, str) and value:
+        path = Path(os.path.expanduser(value))
+        if not path.is_absolute() and base is not None:
+            path = base / path
+        return load_calibration(path)
+    raise ConfigError("calibration", "must be a file path or a mapping (focal_px, baseline_m, width, height)",
+                      value, source)
+
+
+def run_config_from_dict(data: Any, source: str | None = None, base_dir: Path | None = None,
+                         origin: Mapping[str, str] | None = None) -> RunConfig:
+    """Validate a nested mapping into a :class:`RunConfig`.
+
+    Relative paths (calibration, params_file, logging.dir, replay path) are taken
+    relative to ``base_dir`` (the config file's directory).
+    """
+    from .sources import source_config_from_dict
+
+    if data is None:
+        data = {}
+    if not isinstance(data, Mapping):
+        raise ConfigError("(top level)", "must be a mapping of sections", type(data).__name__, source)
+    for top in data:
+        if top not in TOP_KEYS:
+            raise ConfigError(str(top), f"is not a known section (known: {', '.join(TOP_KEYS)})", data[top], source)
+    origin = dict(origin or {})
+    src = lambda key: origin.get(key, source)  # noqa: E731  where a key's value came from
+    if data.get("source") is None:
+        raise ConfigError("source", "is required (a mapping with kind: synthetic, replay, uvc or oak)", None, source)
+    source_cfg = source_config_from_dict(data["source"], source, base_dir, origin)
+    calibration = _calibration(data.get("calibration"), base_dir, src("calibration"))
+    params_file = Key("params_file", "path", None, "", optional=True).validate(
+        "", data.get("params_file"), src("params_file"))
+    if params_file is not None and not params_file.is_absolute() and base_dir is not None:
+        params_file = base_dir / params_file
+    sections = {name: cls(**section_values(cls.KEYS, data.get(name), name, source, origin=origin))
+                for name, cls in SECTION_CLASSES.items()}
+    if sections["logging"].dir is not None and not sections["logging"].dir.is_absolute() and base_dir is not None:
+        sections["logging"] = _replace(sections["logging"], dir=base_dir / sections["logging"].dir)
+    mav = sections["mavlink"]
+    if (mav.system_id, mav.component_id) == (1, 1):
+        raise ConfigError("mavlink.component_id", "must not be 1 when system_id is 1 (ArduPilot drops messages "
+                          "carrying its own ids as a loopback)", 1, src("mavlink.component_id"))
+    svc = sections["service"]
+    if svc.reconnect_max_s < svc.reconnect_min_s:
+        raise ConfigError("service.reconnect_max_s", f"must be at least service.reconnect_min_s "
+                          f"({svc.reconnect_min_s:g})", svc.reconnect_max_s, source)
+    return RunConfig(source=source_cfg, calibration=calibration, params_file=params_file, origin=origin,
+                     **sections)
+
+
+def _replace(obj: Any, **changes: Any) -> Any:
+    from dataclasses import replace
+
+    return replace(obj, **changes)
+
+
+# -- resolution: argument > environment > file > default ------------------------------------
+
+def env_keys() -> dict[str, str]:
+    """``UAV_DEPTH_*`` variable name -> dotted config key, for every settable key."""
+    from .sources import SOURCES, source_keys
+
+    out = {f"{ENV_PREFIX}PARAMS_FILE": "params_file", f"{ENV_PREFIX}CALIBRATION": "calibration"}
+    for name, cls in SECTION_CLASSES.items():
+        for k in cls.KEYS:
+            out[f"{ENV_PREFIX}{name.upper()}_{k.name.upper()}"] = f"{name}.{k.name}"
+    out[f"{ENV_PREFIX}SOURCE_KIND"] = "source.kind"
+    for kind in SOURCES:
+        for k in source_keys(kind):
+            out[f"{ENV_PREFIX}SOURCE_{k.name.upper()}"] = f"source.{k.name}"
+    return out
+
+
+def parse_value(text: str) -> Any:
+    """A setting given as text (environment, ``--set``): a YAML scalar or flow list/mapping."""
+    try:
+        return yaml.safe_load(text) if text.strip() else None
+    except yaml.YAMLError:
+        return text
+
+
+def _set_dotted(data: dict[str, Any], dotted: str, value: Any) -> None:
+    parts = dotted.split(".")
+    node = data
+    for p in parts[:-1]:
+        child = node.get(p)
+        if not isinstance(child, dict):
+            child = {} if child is None or not isinstance(child, Mapping) else dict(child)
+            node[p] = child
+        node = child
+    node[parts[-1]] = value
+
+
+def read_config_file(path: str | os.PathLike[str]) -> dict[str, Any]:
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError as exc:
+        raise ConfigError("--config", "must name an existing file", str(path)) from exc
+    except OSError as exc:
+        raise FileFormatError(f"{path}: cannot read config ({exc.strerror})") from exc
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        raise ConfigError("(file)", f"must be valid YAML{where}", getattr(exc, "problem", str(exc)),
+                          str(path)) from exc
+    if data is None:
+        return {}
+    if not isinstance(data, Mapping):
+        raise ConfigError("(top level)", "must be a mapping of sections", type(data).__name__, str(path))
+    return _deep_copy(data)
+
+
+def _deep_copy(d: Any) -> Any:
+    if isinstance(d, Mapping):
+        return {k: _deep_copy(v) for k, v in d.items()}
+    if isinstance(d, list):
+        return [_deep_copy(v) for v in d]
+    return d
+
+
+def load_run_config(path: str | os.PathLike[str] | None = None, overrides: Mapping[str, Any] | None = None,
+                    environ: Mapping[str, str] | None = None) -> RunConfig:
+    """Resolve and validate the run config.
+
+    ``path``: the YAML file (None: ``UAV_DEPTH_CONFIG`` or no file). ``overrides``:
+    dotted key -> value given explicitly (command line); they win over
+    ``UAV_DEPTH_*`` variables in ``environ`` (default ``os.environ``), which win
+    over the file. Unknown ``UAV_DEPTH_*`` variables are logged, not fatal.
+    """
+    environ = os.environ if environ is None else environ
+    if path is None and environ.get("UAV_DEPTH_CONFIG"):
+        path = environ["UAV_DEPTH_CONFIG"]
+    data: dict[str, Any] = {}
+    source = None
+    base_dir = None
+    if path is not None:
+        data = read_config_file(path)
+        source = str(path)
+        base_dir = Path(path).resolve().parent
+    origin: dict[str, str] = {}
+    known = env_keys()
+    for name in sorted(environ):
+        if not name.startswith(ENV_PREFIX) or name in ENV_RESERVED:
+            continue
+        dotted = known.get(name)
+        if dotted is None:
+            log.warning("ignoring unknown environment variable %s (known: %s)", name,
+                        ", ".join(sorted(set(known) | set(ENV_RESERVED))))
+            continue
+        _set_dotted(data, dotted, parse_value(environ[name]))
+        origin[dotted] = f"environment {name}"
+        origin.setdefault(dotted.split(".")[0], f"environment {name}")
+    for dotted, value in (overrides or {}).items():
+        _set_dotted(data, dotted, value)
+        origin[dotted] = "command line"
+        origin.setdefault(dotted.split(".")[0], "command line")
+    return run_config_from_dict(data, source, base_dir, origin)
+
+
+def reference_markdown() -> str:
+    """The README's config reference: every key of every section, from the tables above."""
+    from .sources import SOURCES, source_keys
+
+    rows = ["| key | default | accepted | meaning |", "|---|---|---|---|"]
+    rows.append("| `params_file` | null | path, or null | stereo parameter file, hot-reloaded; null or absent "
+                "file: built-in manual defaults |")
+    rows.append("| `calibration` | null | path, mapping, or null | stereo calibration (file or inline); "
+                "null: the source's own |")
+    rows.append(f"| `source.kind` | (required) | {' / '.join(SOURCES)} | frame source |")
+    for kind in SOURCES:
+        for k in source_keys(kind):
+            rows.append(f"| `source.{k.name}` ({kind}) | {_default(k)} | {k.accepted()} | {k.doc} |")
+    for name, cls in SECTION_CLASSES.items():
+        for k in cls.KEYS:
+            rows.append(f"| `{name}.{k.name}` | {_default(k)} | {k.accepted()} | {k.doc} |")
+    return "\n".join(rows)
+
+
+def _default(k: Key) -> str:
+    if k.default is None:
+        return "null" if k.optional else "(required)"
+    if isinstance(k.default, bool):
+        return str(k.default).lower()
+    return str(k.default)
+
+
+__all__ = ["Key", "RunConfig", "RangingConfig", "MavlinkConfig", "LoggingConfig", "ServiceConfig",
+           "load_run_config", "run_config_from_dict", "section_values", "reference_markdown", "env_keys"]
+
+
+def _fields_match() -> None:  # the KEYS tables and the dataclass fields must agree
+    for cls in SECTION_CLASSES.values():
+        names = [f.name for f in fields(cls)]
+        assert names == [k.name for k in cls.KEYS], cls
+        for f, k in zip(fields(cls), cls.KEYS):
+            assert f.default == k.default, (cls, f.name)
+
+
+_fields_match()

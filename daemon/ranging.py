@@ -1,0 +1,227 @@
+"""Branch ranging: from a disparity result to the distance of the nearest significant object in the ROI.
+
+Only pixels the matcher really measured are used (``DisparityResult.measured``,
+not WLS fill-in), and only where WLS's left-right confidence is at least
+``min_confidence``. Among them, the nearest significant object is found in
+disparity:
+
+1. ``front``: the ``min_valid_px``-th largest disparity, so that fewer than
+   ``min_valid_px`` stray pixels nearer than the object cannot pull it forward;
+2. the object: every pixel between ``front`` and the disparity of a surface
+   ``cluster_depth_m`` behind it, widened by ``cluster_margin_px`` for matching
+   noise;
+3. its disparity: the confidence-weighted median; its spread sigma_d: 1.4826 x
+   the weighted median absolute deviation.
+
+Z = f*B/d and sigma_Z = Z^2/(f*B) * sigma_d. A frame whose distance jumps by more
+than ``max_jump_rel`` from the last accepted one is held back until
+``confirm_frames`` consecutive frames agree (:class:`OutlierGate`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+
+from .calibration import Calibration
+from .config import RangingConfig
+from .disparity import DisparityResult
+from .errors import ConfigError
+from .params import StereoParams
+
+#: Disparity margin around the object's depth band, px: SGBM's typical matching noise.
+CLUSTER_MARGIN_PX = 1.0
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One frame's ranging result. ``distance_m`` is None when there is no measurement (``reason`` says why).
+
+    ``sigma_m``: 1-sigma uncertainty of the distance; ``quality``: 2..100 from the
+    valid fraction of the ROI and the object's mean confidence (1 is reserved for
+    "invalid" on the wire); ``bbox``: (x0, y0, x1, y1) px of the object's pixels in
+    the image; ``disparity_px``/``sigma_px``: the object's disparity and spread;
+    ``n_px``: its pixel count; ``valid_fraction``: measured confident pixels / ROI area.
+    """
+
+    distance_m: float | None
+    sigma_m: float | None = None
+    quality: int = 0
+    bbox: tuple[int, int, int, int] | None = None
+    disparity_px: float | None = None
+    sigma_px: float | None = None
+    n_px: int = 0
+    valid_fraction: float = 0.0
+    reason: str | None = None
+
+    @property
+    def valid(self) -> bool:
+        return self.distance_m is not None
+
+
+@dataclass(frozen=True)
+class RangeLimits:
+    """What the sensor can report, for DISTANCE_SENSOR: distances in m, fields of view of the ROI in rad."""
+
+    min_distance_m: float
+    max_distance_m: float
+    hfov_rad: float
+    vfov_rad: float
+
+
+def default_roi(width: int, height: int) -> tuple[int, int, int, int]:
+    """The central third of the image (as SceneConfig.center_roi)."""
+    return (width // 3, height // 3, 2 * width // 3, 2 * height // 3)
+
+
+def resolve_roi(roi: tuple[int, int, int, int] | None, width: int, height: int) -> tuple[int, int, int, int]:
+    """The configured ROI checked against the image size, or the default one."""
+    if roi is None:
+        return default_roi(width, height)
+    x0, y0, x1, y1 = roi
+    if x1 > width or y1 > height:
+        raise ConfigError("ranging.roi", f"must lie inside the {width}x{height} rectified image", list(roi))
+    return roi
+
+
+def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    order = np.argsort(values, kind="stable")
+    v, w = values[order], weights[order]
+    cum = np.cumsum(w, dtype=np.float64)
+    return float(v[min(int(np.searchsorted(cum, 0.5 * cum[-1])), v.size - 1)])
+
+
+class Ranger:
+    """The ranging stage for one calibration, ROI and parameter set (rebuilt on a parameter swap).
+
+    ``calibration`` is the *rectified* calibration; ``roi`` (x0, y0, x1, y1) px.
+    """
+
+    def __init__(self, config: RangingConfig, calibration: Calibration, roi: tuple[int, int, int, int],
+                 params: StereoParams):
+        self.config = config
+        self.calibration = calibration
+        self.roi = roi
+        self.params = params
+        self.fb = calibration.focal_px * calibration.baseline_m
+        sg = params.sgbm
+        d_max = sg.min_disparity + sg.num_disparities - 1      # largest disparity SGBM can return, px
+        if d_max <= 0:
+            raise ConfigError("sgbm.num_disparities", "must reach positive disparities for ranging",
+                              sg.num_disparities)
+        # Farther than max_distance_m (or than the smallest searched disparity) is "no measurement".
+        self.d_floor = max(self.fb / config.max_distance_m, float(sg.min_disparity), 1.0 / 16.0)
+        self.limits = RangeLimits(min_distance_m=self.fb / d_max, max_distance_m=self.fb / self.d_floor,
+                                  hfov_rad=_fov(roi[0], roi[2], calibration.principal_point[0],
+                                                calibration.focal_px),
+                                  vfov_rad=_fov(roi[1], roi[3], calibration.principal_point[1],
+                                                calibration.focal_px))
+
+    def measure(self, result: DisparityResult) -> Measurement:
+        """The nearest significant object's distance in the ROI of one disparity result."""
+        cfg = self.config
+        x0, y0, x1, y1 = self.roi
+        disp = result.measured[y0:y1, x0:x1]
+        area = disp.size
+        ok = np.isfinite(disp) & (disp >= self.d_floor)
+        conf = None
+        if result.confidence is not None:
+            conf = result.confidence[y0:y1, x0:x1]
+            ok &= conf >= cfg.min_confidence
+        ys, xs = np.nonzero(ok)
+        n_valid = ys.size
+        valid_fraction = n_valid / area
+        if n_valid < cfg.min_valid_px:
+            return Measurement(None, n_px=n_valid, valid_fraction=valid_fraction,
+                               reason=f"{n_valid} confident measured pixels in the ROI, fewer than "
+                                      f"min_valid_px {cfg.min_valid_px}")
+        vals = disp[ys, xs].astype(np.float64)
+        weights = conf[ys, xs].astype(np.float64) if conf is not None else np.ones_like(vals)
+        k = cfg.min_valid_px
+        front = float(np.partition(vals, vals.size - k)[vals.size - k])    # the k-th largest disparity
+        lower = self.fb / (self.fb / front + cfg.cluster_depth_m) - CLUSTER_MARGIN_PX
+        member = (vals >= lower) & (vals <= front + CLUSTER_MARGIN_PX)
+        n_obj = int(member.sum())
+        if n_obj < k:   # cannot happen for k <= members, kept as a guard for degenerate margins
+            return Measurement(None, n_px=n_obj, valid_fraction=valid_fraction, reason="no significant object")
+        v, w = vals[member], weights[member]
+        if not w.sum() > 0:
+            w = np.ones_like(v)
+        d = _weighted_median(v, w)
+        sigma_d = 1.4826 * _weighted_median(np.abs(v - d), w)
+        z = self.fb / d
+        sigma_z = z * z / self.fb * sigma_d
+        mean_conf = float(w.mean()) if conf is not None else 1.0
+        quality = int(min(100, max(2, round(100.0 * valid_fraction * mean_conf))))
+        oy, ox = ys[member], xs[member]
+        bbox = (int(ox.min()) + x0, int(oy.min()) + y0, int(ox.max()) + x0 + 1, int(oy.max()) + y0 + 1)
+        return Measurement(distance_m=z, sigma_m=sigma_z, quality=quality, bbox=bbox, disparity_px=d,
+                           sigma_px=sigma_d, n_px=n_obj, valid_fraction=valid_fraction)
+
+
+def _fov(a0: int, a1: int, c: float, f: float) -> float:
+    """Angle subtended by pixel columns (or rows) a0..a1-1, rad (pixel edges at +-0.5)."""
+    return math.atan((a1 - 0.5 - c) / f) - math.atan((a0 - 0.5 - c) / f)
+
+
+@dataclass
+class OutlierGate:
+    """Single-frame outlier rejection over successive measurements.
+
+    A distance that differs from the last accepted one by more than ``max_jump_rel``
+    (relative) is held back; it is accepted once ``confirm_frames`` consecutive
+    frames agree with each other within that tolerance. After ``forget_s`` without
+    an accepted measurement the history is forgotten (the next one is accepted).
+    """
+
+    max_jump_rel: float
+    confirm_frames: int
+    forget_s: float = 1.0
+    _last: float | None = None
+    _last_t: float = -math.inf
+    _pending: list[float] = field(default_factory=list)
+
+    def accept(self, distance_m: float, t: float) -> bool:
+        if self.max_jump_rel <= 0 or self._last is None or t - self._last_t > self.forget_s:
+            return self._take(distance_m, t)
+        if abs(distance_m - self._last) <= self.max_jump_rel * self._last:
+            return self._take(distance_m, t)
+        if self._pending and abs(distance_m - self._pending[-1]) > self.max_jump_rel * self._pending[-1]:
+            self._pending = []
+        self._pending.append(distance_m)
+        if len(self._pending) >= self.confirm_frames:
+            return self._take(distance_m, t)
+        return False
+
+    def _take(self, distance_m: float, t: float) -> bool:
+        self._last, self._last_t, self._pending = distance_m, t, []
+        return True
+
+    def reset(self) -> None:
+        self._last, self._last_t, self._pending = None, -math.inf, []
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """What the send clock publishes: one accepted measurement of one frame.
+
+    ``t_capture``: monotonic s of the frame's capture (age is measured from it);
+    ``timings_ms``: per-stage wall times of this frame; ``truth_m``: the source's
+    ground truth when it knows it.
+    """
+
+    measurement: Measurement
+    limits: RangeLimits
+    t_capture: float
+    t_done: float
+    frame_index: int
+    params_hash: str
+    truth_m: float | None = None
+    timings_ms: Mapping[str, float] = field(default_factory=dict)
+
+    @property
+    def distance_m(self) -> float | None:
+        return self.measurement.distance_m

@@ -1,0 +1,132 @@
+"""Watch one file for changes: inotify when the kernel has it, polling always as the fallback.
+
+The tuner replaces the parameter file atomically (temp file + rename), so the
+watch is on the *directory* (a rename replaces the inode a file watch would
+follow). Every ``poll_s`` the file's identity (inode, size, mtime) is compared
+anyway, which covers file systems without inotify and missed events. The watcher
+runs until its stop event is set; ``on_change`` runs on the watcher's thread.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import logging
+import os
+import select
+import struct
+import threading
+from pathlib import Path
+from typing import Callable
+
+log = logging.getLogger("uav_depth.reload")
+
+# <sys/inotify.h>
+_IN_MODIFY, _IN_ATTRIB, _IN_CLOSE_WRITE = 0x002, 0x004, 0x008
+_IN_MOVED_FROM, _IN_MOVED_TO, _IN_CREATE, _IN_DELETE = 0x040, 0x080, 0x100, 0x200
+_IN_NONBLOCK, _IN_CLOEXEC = 0o4000, 0o2000000
+_EVENT = struct.Struct("iIII")   # wd, mask, cookie, len
+#: Quiet time after an event before the file is read: editors write in several steps.
+SETTLE_S = 0.05
+
+
+def file_signature(path: Path) -> tuple[int, int, int] | None:
+    """(inode, size, mtime ns) of ``path``, or None when it does not exist."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return (st.st_ino, st.st_size, st.st_mtime_ns)
+
+
+class _Inotify:
+    """A minimal inotify watch on one directory through libc (no native dependency)."""
+
+    def __init__(self, directory: Path):
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or None, use_errno=True)
+        self.fd = libc.inotify_init1(_IN_NONBLOCK | _IN_CLOEXEC)
+        if self.fd < 0:
+            raise OSError(ctypes.get_errno(), "inotify_init1 failed")
+        mask = _IN_MODIFY | _IN_ATTRIB | _IN_CLOSE_WRITE | _IN_MOVED_FROM | _IN_MOVED_TO | _IN_CREATE | _IN_DELETE
+        if libc.inotify_add_watch(self.fd, os.fsencode(str(directory)), mask) < 0:
+            err = ctypes.get_errno()
+            os.close(self.fd)
+            raise OSError(err, f"inotify_add_watch {directory} failed")
+
+    def wait(self, name: str, timeout_s: float) -> bool:
+        """True when an event about ``name`` arrived within ``timeout_s``."""
+        readable, _, _ = select.select([self.fd], [], [], timeout_s)
+        if not readable:
+            return False
+        try:
+            data = os.read(self.fd, 65536)
+        except BlockingIOError:
+            return False
+        hit, i = False, 0
+        while i + _EVENT.size <= len(data):
+            _, _, _, length = _EVENT.unpack_from(data, i)
+            raw = data[i + _EVENT.size:i + _EVENT.size + length].rstrip(b"\0")
+            hit |= os.fsdecode(raw) == name
+            i += _EVENT.size + length
+        return hit
+
+    def close(self) -> None:
+        os.close(self.fd)
+
+
+class FileWatcher:
+    """Calls ``on_change(path)`` when ``path`` is created, replaced, modified or removed.
+
+    ``poll_s``: the polling period (and the longest wait for a missed event);
+    ``use_inotify``: False forces pure polling.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], on_change: Callable[[Path], None], poll_s: float = 1.0,
+                 use_inotify: bool = True):
+        self.path = Path(path)
+        self.on_change = on_change
+        self.poll_s = poll_s
+        self.use_inotify = use_inotify
+        self.mode = "poll"
+        self._thread: threading.Thread | None = None
+        self._stop: threading.Event | None = None
+
+    def run(self, stop: threading.Event) -> None:
+        """Watch until ``stop`` is set (blocking; :meth:`start` runs it on a thread)."""
+        notify = None
+        if self.use_inotify and self.path.parent.is_dir():
+            try:
+                notify = _Inotify(self.path.parent)
+                self.mode = "inotify"
+            except (OSError, AttributeError) as exc:   # no inotify (not Linux, limits reached): poll
+                log.info("watching %s by polling every %.2g s (%s)", self.path, self.poll_s, exc)
+        seen = file_signature(self.path)
+        try:
+            while not stop.is_set():
+                if notify is not None:
+                    if notify.wait(self.path.name, self.poll_s) and stop.wait(SETTLE_S):
+                        break
+                elif stop.wait(self.poll_s):
+                    break
+                now = file_signature(self.path)
+                if now != seen:
+                    seen = now
+                    try:
+                        self.on_change(self.path)
+                    except Exception:   # a failing handler must not end the watch
+                        log.exception("handling a change of %s failed", self.path)
+        finally:
+            if notify is not None:
+                notify.close()
+
+    def start(self, stop: threading.Event) -> "FileWatcher":
+        self._stop = stop
+        self._thread = threading.Thread(target=self.run, args=(stop,), name="params-watch", daemon=True)
+        self._thread.start()
+        return self
+
+    def join(self, timeout_s: float) -> bool:
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+            return not self._thread.is_alive()
+        return True
