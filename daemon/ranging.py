@@ -11,7 +11,7 @@ disparity:
    ``cluster_depth_m`` behind it, widened by ``cluster_margin_px`` for matching
    noise;
 3. its disparity: the confidence-weighted median; its spread sigma_d: 1.4826 x
-   the weighted median absolute deviation.
+   the weighted median absolute deviation, at least 0.29 px (SGBM's pixel locking).
 
 Z = f*B/d and sigma_Z = Z^2/(f*B) * sigma_d. A frame whose distance jumps by more
 than ``max_jump_rel`` from the last accepted one is held back until
@@ -34,6 +34,11 @@ from .params import StereoParams
 
 #: Disparity margin around the object's depth band, px: SGBM's typical matching noise.
 CLUSTER_MARGIN_PX = 1.0
+#: Floor of the disparity uncertainty, px. SGBM's sub-pixel estimate is pulled toward whole
+#: pixels ("pixel locking", seen on the synthetic scenes as coherent errors up to 0.45 px over a
+#: whole branch), so even a perfectly tight cluster is only known to about +-0.5 px: a uniform
+#: error of that width has sigma 1/sqrt(12).
+PIXEL_LOCKING_SIGMA_PX = 1.0 / math.sqrt(12.0)
 
 
 @dataclass(frozen=True)
@@ -151,7 +156,7 @@ class Ranger:
         if not w.sum() > 0:
             w = np.ones_like(v)
         d = _weighted_median(v, w)
-        sigma_d = 1.4826 * _weighted_median(np.abs(v - d), w)
+        sigma_d = max(1.4826 * _weighted_median(np.abs(v - d), w), PIXEL_LOCKING_SIGMA_PX)
         z = self.fb / d
         sigma_z = z * z / self.fb * sigma_d
         mean_conf = float(w.mean()) if conf is not None else 1.0

@@ -16,6 +16,7 @@ import os
 import select
 import struct
 import threading
+import time
 from pathlib import Path
 from typing import Callable
 
@@ -28,6 +29,7 @@ _IN_NONBLOCK, _IN_CLOEXEC = 0o4000, 0o2000000
 _EVENT = struct.Struct("iIII")   # wd, mask, cookie, len
 #: Quiet time after an event before the file is read: editors write in several steps.
 SETTLE_S = 0.05
+_SLICE_S = 0.25
 
 
 def file_signature(path: Path) -> tuple[int, int, int] | None:
@@ -101,13 +103,19 @@ class FileWatcher:
             except (OSError, AttributeError) as exc:   # no inotify (not Linux, limits reached): poll
                 log.info("watching %s by polling every %.2g s (%s)", self.path, self.poll_s, exc)
         seen = file_signature(self.path)
+        next_poll = time.monotonic() + self.poll_s
         try:
             while not stop.is_set():
-                if notify is not None:
-                    if notify.wait(self.path.name, self.poll_s) and stop.wait(SETTLE_S):
-                        break
-                elif stop.wait(self.poll_s):
+                # short slices, so a set stop event ends the watch within a quarter second
+                slice_s = max(0.0, min(_SLICE_S, next_poll - time.monotonic()))
+                hit = notify.wait(self.path.name, slice_s) if notify is not None else False
+                if notify is None and stop.wait(slice_s):
                     break
+                if hit and stop.wait(SETTLE_S):
+                    break
+                if not hit and time.monotonic() < next_poll:
+                    continue
+                next_poll = time.monotonic() + self.poll_s
                 now = file_signature(self.path)
                 if now != seen:
                     seen = now

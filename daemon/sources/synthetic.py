@@ -117,7 +117,7 @@ class SyntheticSource:
         self._stop = stop_event or threading.Event()
         self.calibration = config.scene.calibration
         self._scene: Scene | None = None
-        self._cache: tuple[bytes, StereoFrame, float] | None = None
+        self._cache: tuple[bytes, StereoFrame] | None = None
         self._t0 = 0.0
         self._next = 0
         self.renders = 0
@@ -149,35 +149,34 @@ class SyntheticSource:
         except Exception as exc:   # a broken provider is a lost camera, not a crashed daemon
             raise SourceError(f"synthetic: pose provider failed: {type(exc).__name__}: {exc}") from exc
 
-    def _render(self, pose: Pose, index: int) -> tuple[StereoFrame, float, bool]:
+    def _render(self, pose: Pose, index: int) -> tuple[StereoFrame, bool]:
         key = (np.asarray(pose.rotation, np.float64).tobytes() + np.asarray(pose.position, np.float64).tobytes())
         if self._cache is not None and self._cache[0] == key:
-            return self._cache[1], self._cache[2], False
+            return self._cache[1], False
         assert self._scene is not None
         rendered = self._scene.render(pose, np.random.default_rng([self.config.scene.seed, index]))
-        truth = rendered.nearest_branch_distance(self.truth_roi)
-        self._cache = (key, rendered, truth)
+        self._cache = (key, rendered)
         self.renders += 1
-        return rendered, truth, True
+        return rendered, True
 
     def read(self, timeout_s: float) -> Frame | None:
         if self._scene is None:
             raise SourceError("synthetic: read() before open()")
         period = 1.0 / self.config.fps
-        due = self._t0 + self._next * period
-        wait = due - self.clock()
+        # A late reader gets the latest frame due, never a backlog of old ones.
+        index = max(self._next, int(math.floor((self.clock() - self._t0) / period)))
+        wait = self._t0 + index * period - self.clock()
         if wait > timeout_s:
             self._stop.wait(timeout_s)
             return None
         if wait > 0 and self._stop.wait(wait):
             return None
-        index = self._next
         t_pose = self.clock()
-        rendered, truth, fresh = self._render(self._pose(t_pose - self._t0), index)
+        rendered, fresh = self._render(self._pose(t_pose - self._t0), index)
+        truth = rendered.nearest_branch_distance(self.truth_roi)
         # A fresh render shows the pose sampled before rendering: the frame is that old.
         t_capture = t_pose if fresh else self.clock()
-        # Frames that fell due while rendering are skipped: the next one is the latest due, never a backlog.
-        self._next = max(index + 1, int(math.floor((self.clock() - self._t0) / period)))
+        self._next = index + 1
         return Frame(left=rendered.left, right=rendered.right, index=index, t_capture=t_capture,
                      truth_m=None if math.isnan(truth) else truth, reference=rendered.disparity,
                      reference_source={"kind": "synthetic", "exact": True,

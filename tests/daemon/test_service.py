@@ -1,0 +1,208 @@
+"""The service in-process, against a real pymavlink endpoint: staleness, camera loss, hot reload, start-up failures."""
+
+import socket
+import threading
+import time
+from types import SimpleNamespace
+
+import pytest
+
+from uav_depth.daemon.config import run_config_from_dict
+from uav_depth.daemon.errors import ConfigError, SourceError
+from uav_depth.daemon.mavlink_out import mavutil
+from uav_depth.daemon.params import DEFAULT_PARAMS, atomic_write_text, save_params
+from uav_depth.daemon.scene import Pose
+from uav_depth.daemon.service import Service, check_roi_against_compute
+
+SCENE = {"width": 320, "height": 240, "focal_px": 200.0, "branch_distance_m": 0.8, "branch_radius_m": 0.04,
+         "seed": 1}
+PARAMS_64 = DEFAULT_PARAMS.replace(**{"sgbm.num_disparities": 64})
+
+
+def free_port():
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    return port
+
+
+class Receiver:
+    """A real udpin endpoint recording (arrival time, message) on a thread."""
+
+    def __init__(self):
+        self.port = free_port()
+        self.conn = mavutil().mavlink_connection(f"udpin:127.0.0.1:{self.port}", source_system=255)
+        self.msgs = []
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._loop, daemon=True)
+        self._t.start()
+
+    def _loop(self):
+        while not self._stop.is_set():
+            m = self.conn.recv_match(blocking=True, timeout=0.05)
+            if m is not None and m.get_type() != "BAD_DATA":
+                self.msgs.append((time.monotonic(), m))
+
+    def of(self, mtype, since=0.0):
+        return [m for t, m in self.msgs if m.get_type() == mtype and t >= since]
+
+    def texts(self):
+        return [m.text for m in self.of("STATUSTEXT")]
+
+    def wait(self, pred, timeout=10.0):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if pred():
+                return True
+            time.sleep(0.02)
+        return False
+
+    def close(self):
+        self._stop.set()
+        self._t.join(1)
+        self.conn.close()
+
+
+def config(rx, **sections):
+    data = {"source": {"kind": "synthetic", "fps": 10, "scene": SCENE},
+            "mavlink": {"url": f"udpout:127.0.0.1:{rx.port}", "rate_hz": 20},
+            "service": {"status_interval_s": 0.5, "reconnect_min_s": 0.05, "reconnect_max_s": 0.1,
+                        "frame_timeout_s": 0.5, "params_poll_s": 0.1}}
+    for k, v in sections.items():
+        data[k] = {**data.get(k, {}), **v} if isinstance(v, dict) and k != "source" else v
+    return run_config_from_dict(data)
+
+
+class Running:
+    """Run a Service on a thread for the duration of a with-block."""
+
+    def __init__(self, service):
+        self.service = service
+        self.stop = threading.Event()
+        self.report = None
+        self.error = None
+
+    def __enter__(self):
+        def target():
+            try:
+                self.report = self.service.run(self.stop)
+            except Exception as exc:   # surfaced by the test below
+                self.error = exc
+        self.thread = threading.Thread(target=target, daemon=True)
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.stop.set()
+        self.thread.join(10)
+        assert not self.thread.is_alive()
+
+
+@pytest.fixture
+def rx():
+    r = Receiver()
+    yield r
+    r.close()
+
+
+@pytest.fixture
+def params_file(tmp_path):
+    path = tmp_path / "params.yaml"
+    save_params(PARAMS_64, path)
+    return path
+
+
+def test_a_stale_estimate_is_never_sent_as_valid(rx, params_file):
+    # Every estimate is older than 1 ms by the time it is published: the frames are measured
+    # (valid distances) but none may go out as valid.
+    svc = Service(config(rx, params_file=str(params_file), ranging={"max_age_ms": 1}))
+    with Running(svc):
+        assert rx.wait(lambda: len(rx.of("DISTANCE_SENSOR")) >= 30)
+    assert svc.last_estimate is not None and svc.last_estimate.measurement.valid
+    assert svc.stats.frames >= 3
+    ds = rx.of("DISTANCE_SENSOR")
+    assert all(m.signal_quality == 1 and m.current_distance > m.max_distance and m.covariance == 255 for m in ds)
+
+
+def test_fresh_estimates_are_sent_and_the_distance_is_right(rx, params_file):
+    svc = Service(config(rx, params_file=str(params_file)))
+    with Running(svc) as run:
+        assert rx.wait(lambda: len([m for m in rx.of("DISTANCE_SENSOR") if m.signal_quality > 1]) >= 10)
+    assert run.report.clean
+    valid = [m for m in rx.of("DISTANCE_SENSOR") if m.signal_quality > 1]
+    assert all(abs(m.current_distance - 80) <= 3 for m in valid)     # 0.8 m within 3 %
+
+
+def test_camera_loss_sends_no_measurement_and_recovers(rx, params_file):
+    lost = threading.Event()
+
+    def pose(t):
+        if lost.is_set():
+            raise SourceError("synthetic: camera unplugged (test)")
+        return Pose.forward(0.0)
+
+    svc = Service(config(rx, params_file=str(params_file), ranging={"max_age_ms": 300}), pose_provider=pose)
+    with Running(svc):
+        assert rx.wait(lambda: any(m.signal_quality > 1 for m in rx.of("DISTANCE_SENSOR")))
+        lost.set()
+        t_lost = time.monotonic()
+        assert rx.wait(lambda: "uav-depth: camera lost" in rx.texts())
+        time.sleep(1.6)                 # long enough for at least one HEARTBEAT (1 Hz)
+        lost.clear()
+        assert rx.wait(lambda: "uav-depth: camera back" in rx.texts())
+        t_back = time.monotonic()
+        assert rx.wait(lambda: any(m.signal_quality > 1 for m in rx.of("DISTANCE_SENSOR", since=t_back)))
+    gap = [m for t, m in rx.msgs if m.get_type() == "DISTANCE_SENSOR" and t_lost + 0.45 < t < t_back]
+    assert len(gap) >= 5 and all(m.signal_quality == 1 for m in gap)
+    beats = [m.system_status for t, m in rx.msgs if m.get_type() == "HEARTBEAT" and t_lost + 0.2 < t < t_back]
+    assert 5 in beats                                              # MAV_STATE_CRITICAL while the camera is gone
+
+
+def test_hot_reload_swaps_valid_and_rejects_invalid_parameters(rx, params_file):
+    svc = Service(config(rx, params_file=str(params_file)))
+    with Running(svc):
+        assert rx.wait(lambda: svc.stats.frames >= 2)
+        first = svc.stage
+        new = PARAMS_64.replace(**{"sgbm.uniqueness_ratio": 15})
+        save_params(new, params_file)
+        assert rx.wait(lambda: svc.stage.params == new), "new parameters not picked up"
+        assert rx.wait(lambda: f"uav-depth: params {new.hash()[:8]} loaded" in rx.texts())
+        assert rx.wait(lambda: svc.last_estimate.params_hash == new.hash())   # frames use the new stage
+        swapped = svc.stage
+        atomic_write_text(params_file, "sgbm:\n  num_disparities: 40\n")
+        assert rx.wait(lambda: f"uav-depth: params rejected, kept {new.hash()[:8]}" in rx.texts())
+        t_bad = time.monotonic()
+        assert rx.wait(lambda: sum(m.signal_quality > 1 for m in rx.of("DISTANCE_SENSOR", since=t_bad)) >= 10)
+        assert svc.stage is swapped and svc.stage is not first
+
+
+def test_missing_camera_fails_start_up_and_leaves_nothing_running(rx):
+    before = {t.name for t in threading.enumerate()}
+    svc = Service(config(rx, source={"kind": "uvc", "device": "/dev/video98"}))
+    with pytest.raises(SourceError, match="/dev/video98 not found"):
+        svc.run(threading.Event())
+    time.sleep(0.3)
+    left = {t.name for t in threading.enumerate()} - before
+    assert not left & {"capture", "stereo", "mavlink-clock", "mavlink-io", "params-watch"}
+
+
+def test_calibration_that_does_not_fit_the_frames_fails_start_up(rx):
+    svc = Service(config(rx, calibration={"focal_px": 200.0, "baseline_m": 0.063, "width": 640, "height": 480}))
+    with pytest.raises(ConfigError, match="frames are 320x240 but the calibration is for 640x480"):
+        svc.run(threading.Event())
+
+
+def test_an_invalid_parameter_file_fails_start_up(rx, tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("sgbm:\n  block_size: 4\n")
+    with pytest.raises(ConfigError, match="sgbm.block_size must be odd, but got 4"):
+        Service(config(rx, params_file=str(bad))).run(threading.Event())
+
+
+def test_ranging_roi_outside_the_matching_roi_is_warned():
+    params = SimpleNamespace(compute=SimpleNamespace(roi=(0.25, 0.25, 0.75, 0.75)))
+    assert check_roi_against_compute((213, 120, 426, 240), params, 640, 360) is None
+    warning = check_roi_against_compute((0, 0, 640, 360), params, 640, 360)
+    assert "reaches outside the parameters' matching region compute.roi (= [160, 90, 480, 270] px" in warning
+    assert check_roi_against_compute((0, 0, 640, 360), PARAMS_64, 640, 360) is None   # no compute section
