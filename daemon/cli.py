@@ -29,6 +29,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "disparity": ("uav_depth.daemon.commands.disparity", "compute the disparity of one stereo pair"),
     "evaluate": ("uav_depth.tuning.commands.evaluate", "score the pipeline against reference disparity in a log"),
     "params": ("uav_depth.daemon.commands.params", "print the default parameter file or check one"),
+    "bench": ("uav_depth.daemon.commands.bench",
+              "time the daemon pipeline against OpenCV's sample pipeline on synthetic scenes (prints figures)"),
     "run": ("uav_depth.daemon.commands.run", "the on-board daemon: stereo -> branch distance -> MAVLink DISTANCE_SENSOR"),
     "sources": ("uav_depth.daemon.commands.sources", "list the frame sources run accepts (and probe for hardware)"),
     "reference": ("uav_depth.tuning.commands.reference",

@@ -66,6 +66,8 @@ class Spec:
     def check(self, value: Any, source: str | None = None) -> Any:
         """Return ``value`` converted to this key's type, or raise ConfigError."""
         key = self.key
+        if self.kind is tuple:
+            return self._check_box(value, source)
         if self.kind is bool:
             if not isinstance(value, bool):
                 raise ConfigError(key, "must be true or false", value, source)
@@ -93,6 +95,21 @@ class Spec:
         if self.rule == "positive" and not value > 0:
             raise ConfigError(key, "must be greater than 0", value, source)
         return value
+
+
+    def _check_box(self, value: Any, source: str | None) -> tuple[float, ...]:
+        """A region [left, top, right, bottom] with every number in lo..hi and left < right, top < bottom."""
+        key = self.key
+        if (not isinstance(value, (list, tuple)) or len(value) != 4
+                or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value)):
+            raise ConfigError(key, "must be a list of 4 numbers [left, top, right, bottom]", value, source)
+        box = tuple(float(v) for v in value)
+        if not all(math.isfinite(v) and self.lo <= v <= self.hi for v in box):
+            raise ConfigError(key, f"must have every number between {_fmt(self.lo)} and {_fmt(self.hi)}",
+                              list(value), source)
+        if not (box[0] < box[2] and box[1] < box[3]):
+            raise ConfigError(key, "must have left < right and top < bottom", list(value), source)
+        return box
 
 
 def _fmt(x: float) -> str:
@@ -123,6 +140,15 @@ SPECS: tuple[Spec, ...] = (
          paper="lambda", paper_range="1..100000"),
     Spec("wls", "sigma_color", float, 1.5, "WLS sensitivity to guide-image edges", 0.0, 100.0, "positive",
          paper="sigma", paper_range="0..0.99"),
+    # Speed levers. Each changes the computed disparity, so they live here and the
+    # tuner scores with them; the defaults (full frame, full resolution, colour as
+    # given) are the manual baseline, computed exactly as before they existed.
+    Spec("compute", "roi", tuple, (0.0, 0.0, 1.0, 1.0),
+         "region matched [left, top, right, bottom], fractions of the left image; NaN outside", 0.0, 1.0, "box"),
+    Spec("compute", "scale", float, 1.0,
+         "matching resolution as a fraction of the input; sgbm.* then count matched pixels, disparities "
+         "come back in input pixels", 0.125, 1.0),
+    Spec("compute", "grey", bool, False, "match grey images (colour input converted first)"),
 )
 
 SPEC_BY_KEY: dict[str, Spec] = {s.key: s for s in SPECS}
@@ -165,17 +191,47 @@ class WLSParams:
 
 
 @dataclass(frozen=True)
+class ComputeParams:
+    """Where and how finely to match (see the ``compute.*`` keys)."""
+
+    roi: tuple[float, float, float, float] = (0.0, 0.0, 1.0, 1.0)
+    scale: float = 1.0
+    grey: bool = False
+
+    @property
+    def is_baseline(self) -> bool:
+        """Full frame, full resolution, colour as given: the manual baseline's computation."""
+        return self.roi == (0.0, 0.0, 1.0, 1.0) and self.scale == 1.0 and not self.grey
+
+    def roi_pixels(self, width: int, height: int) -> tuple[int, int, int, int]:
+        """The region in pixels of a ``width`` x ``height`` image: (x0, y0, x1, y1), x1/y1 exclusive.
+
+        Fractions are rounded to the nearest pixel edge; the box keeps at least one
+        pixel. The pipeline answers inside this box only; scorers (the tuner) and
+        ranging read the same box from here.
+        """
+        left, top, right, bottom = self.roi
+        x0 = min(int(math.floor(left * width + 0.5)), width - 1)
+        y0 = min(int(math.floor(top * height + 0.5)), height - 1)
+        x1 = max(int(math.floor(right * width + 0.5)), x0 + 1)
+        y1 = max(int(math.floor(bottom * height + 0.5)), y0 + 1)
+        return x0, y0, x1, y1
+
+
+@dataclass(frozen=True)
 class StereoParams:
     """Validated, frozen SGBM + WLS parameters. Build with :func:`params_from_dict`."""
 
     sgbm: SGBMParams = SGBMParams()
     wls: WLSParams = WLSParams()
+    compute: ComputeParams = ComputeParams()
 
     def to_dict(self) -> dict[str, dict[str, Any]]:
-        """Plain nested dict in file order, with the file's key names."""
+        """Plain nested dict in file order, with the file's key names (a region as a list)."""
         out: dict[str, dict[str, Any]] = {}
         for spec in SPECS:
-            out.setdefault(spec.section, {})[spec.name] = self.get(spec.key)
+            value = self.get(spec.key)
+            out.setdefault(spec.section, {})[spec.name] = list(value) if isinstance(value, tuple) else value
         return out
 
     def get(self, key: str) -> Any:
@@ -232,7 +288,29 @@ def params_from_dict(data: Any, source: str | None = None) -> StereoParams:
     sg = values["sgbm"]
     if not sg["p2"] > sg["p1"]:
         raise ConfigError("sgbm.p2", f"must be greater than sgbm.p1 ({sg['p1']})", sg["p2"], source)
-    return StereoParams(sgbm=SGBMParams(**sg), wls=WLSParams(**values["wls"]))
+    return StereoParams(sgbm=SGBMParams(**sg), wls=WLSParams(**values["wls"]),
+                        compute=ComputeParams(**values["compute"]))
+
+
+def disparity_search_range(focal_px: float, baseline_m: float, near_m: float, far_m: float = math.inf,
+                           scale: float = 1.0) -> tuple[int, int]:
+    """``(sgbm.min_disparity, sgbm.num_disparities)`` covering distances ``near_m``..``far_m``.
+
+    d = f * B / Z in input pixels, times ``compute.scale`` because SGBM counts
+    matched pixels. ``far_m`` infinite (the default) keeps min_disparity 0, so the
+    far background still finds its true match instead of a false near one. The
+    values are checked against the schema like any file value.
+    """
+    if not (math.isfinite(near_m) and near_m > 0):
+        raise ConfigError("near_m", "must be a positive distance in metres", near_m)
+    if not far_m > near_m:
+        raise ConfigError("far_m", f"must be greater than near_m ({near_m})", far_m)
+    fb = focal_px * baseline_m * scale
+    min_d = int(math.floor(fb / far_m)) if math.isfinite(far_m) else 0
+    max_d = int(math.ceil(fb / near_m))
+    num = 16 * math.ceil((max_d - min_d + 1) / 16)
+    return (SPEC_BY_KEY["sgbm.min_disparity"].check(min_d, "disparity_search_range"),
+            SPEC_BY_KEY["sgbm.num_disparities"].check(num, "disparity_search_range"))
 
 
 def load_params(path: str | os.PathLike[str]) -> StereoParams:
@@ -260,12 +338,22 @@ def read_provenance(path: str | os.PathLike[str]) -> dict[str, Any]:
     return dict(prov) if isinstance(prov, Mapping) else {}
 
 
+class _FileDumper(yaml.SafeDumper):
+    """Safe YAML with lists of plain numbers on one line: ``roi: [0.3, 0.3, 0.7, 0.7]``."""
+
+
+_FileDumper.add_representer(
+    list, lambda dumper, data: dumper.represent_sequence(
+        "tag:yaml.org,2002:seq", data,
+        flow_style=all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in data) or None))
+
+
 def dump_params(params: StereoParams, provenance: Mapping[str, Any] | None = None) -> str:
     """YAML text of ``params`` (and provenance), guaranteed to load back equal."""
     doc: dict[str, Any] = params.to_dict()
     if provenance:
         doc["provenance"] = json.loads(json.dumps(dict(provenance), default=str))
-    text = yaml.safe_dump(doc, sort_keys=False)
+    text = yaml.dump(doc, Dumper=_FileDumper, sort_keys=False)
     if params_from_dict(yaml.safe_load(text)) != params:  # never write what the loader would not give back
         raise ConfigError("(file)", "must round-trip through the loader", text)
     return text
@@ -315,9 +403,12 @@ def params_table_markdown() -> str:
     for s in SPECS:
         if s.choices:
             acc = " / ".join(s.choices)
+        elif s.kind is tuple:
+            acc = f"4 numbers {_fmt(s.lo)}..{_fmt(s.hi)}, left < right, top < bottom"
         elif s.kind is bool:
             acc = "true / false"
         else:
             acc = f"{_fmt(s.lo)}..{_fmt(s.hi)}" + (f", {s.rule.replace('_', ' ')}" if s.rule else "")
-        rows.append(f"| `{s.key}` | {s.default} | {acc} | {s.paper or ''} | {s.paper_range or ''} | {s.doc} |")
+        default = list(s.default) if isinstance(s.default, tuple) else s.default
+        rows.append(f"| `{s.key}` | {default} | {acc} | {s.paper or ''} | {s.paper_range or ''} | {s.doc} |")
     return "\n".join(rows)

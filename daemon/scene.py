@@ -449,6 +449,19 @@ class Scene:
         return StereoFrame(left, right, disp, depth, labels)
 
 
+def background_period_px(config: SceneConfig) -> float:
+    """Image period of the background's texture tile, px (at the identity pose).
+
+    The far plane repeats one texture tile every ``3 / texture_scale`` m. When
+    that period in the image lies inside the disparity search range, SGBM finds
+    a false but consistent match one period away: an artefact of the scene, not
+    of the matcher (real foliage does not repeat exactly). Benchmarks that judge
+    ranging keep it outside the search range.
+    """
+    tile_m = _TEX_M[False] / config.texture_scale
+    return tile_m * config.focal_px / config.background_distance_m
+
+
 def render_pair(config: SceneConfig, pose: Pose | None = None, frame_index: int = 0) -> StereoFrame:
     """Build ``config``'s scene and render one frame; the noise is seeded by (seed, frame_index)."""
     scene = Scene(config)

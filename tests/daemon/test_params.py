@@ -82,3 +82,90 @@ def test_save_refuses_nothing_invalid_and_keeps_old_file(tmp_path):
         DEFAULT_PARAMS.replace(**{"sgbm.block_size": 6})
     assert path.read_text() == before
     assert dump_params(DEFAULT_PARAMS) == before
+
+
+# -- compute.* (speed levers that change the disparity, so they live in the file) ---------------------------------
+
+
+def test_compute_defaults_are_the_full_frame_baseline():
+    cp = DEFAULT_PARAMS.compute
+    assert cp.is_baseline and cp.roi == (0.0, 0.0, 1.0, 1.0) and cp.scale == 1.0 and cp.grey is False
+    assert cp.roi_pixels(1280, 720) == (0, 0, 1280, 720)
+    assert DEFAULT_PARAMS.to_dict()["compute"] == {"roi": [0.0, 0.0, 1.0, 1.0], "scale": 1.0, "grey": False}
+
+
+def test_compute_keys_round_trip_and_region_is_written_on_one_line(tmp_path):
+    params = DEFAULT_PARAMS.replace(**{"compute.roi": [0.25, 0.3, 0.75, 0.7], "compute.scale": 0.5,
+                                       "compute.grey": True})
+    assert not params.compute.is_baseline
+    path = save_params(params, tmp_path / "p.yaml")
+    assert "roi: [0.25, 0.3, 0.75, 0.7]" in path.read_text()
+    assert load_params(path) == params
+    assert params.hash() != DEFAULT_PARAMS.hash()
+
+
+def test_a_file_without_compute_section_loads_as_baseline(tmp_path):
+    path = tmp_path / "old.yaml"
+    path.write_text("sgbm:\n  p1: 100\n  p2: 400\nwls:\n  lambda: 100.0\n")
+    assert load_params(path).compute == DEFAULT_PARAMS.compute
+
+
+@pytest.mark.parametrize("width,height,roi,box", [
+    (1280, 720, (0.33, 0.33, 0.67, 0.67), (422, 238, 858, 482)),
+    (320, 240, (0.0, 0.5, 0.25, 1.0), (0, 120, 80, 240)),
+    (100, 100, (0.5, 0.5, 0.501, 0.502), (50, 50, 51, 51)),      # never empty
+], ids=["centre", "corner", "tiny"])
+def test_roi_pixels(width, height, roi, box):
+    params = DEFAULT_PARAMS.replace(**{"compute.roi": list(roi)})
+    assert params.compute.roi_pixels(width, height) == box
+
+
+BAD_COMPUTE = [
+    ("roi-not-list", {"compute": {"roi": 0.5}}, "compute.roi must be a list of 4 numbers [left, top, right, bottom]"),
+    ("roi-three", {"compute": {"roi": [0, 0, 1]}}, "compute.roi must be a list of 4 numbers"),
+    ("roi-text", {"compute": {"roi": [0, 0, "1", 1]}}, "compute.roi must be a list of 4 numbers"),
+    ("roi-range", {"compute": {"roi": [0, 0, 1.5, 1]}}, "compute.roi must have every number between 0 and 1"),
+    ("roi-order", {"compute": {"roi": [0.6, 0, 0.4, 1]}}, "compute.roi must have left < right and top < bottom, "
+                                                          "but got [0.6, 0, 0.4, 1]"),
+    ("scale-range", {"compute": {"scale": 0.1}}, "compute.scale must be between 0.125 and 1, but got 0.1"),
+    ("scale-up", {"compute": {"scale": 2}}, "compute.scale must be between 0.125 and 1, but got 2.0"),
+    ("grey-bool", {"compute": {"grey": 1}}, "compute.grey must be true or false, but got 1"),
+    ("unknown", {"compute": {"threads": 2}}, "compute.threads is not a known key"),
+]
+
+
+@pytest.mark.parametrize("data,message", [b[1:] for b in BAD_COMPUTE], ids=[b[0] for b in BAD_COMPUTE])
+def test_bad_compute_values_name_key_rule_value(tmp_path, data, message):
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError) as err:
+        load_params(path)
+    assert message in str(err.value) and str(path) in str(err.value) and "\n" not in str(err.value)
+
+
+def test_disparity_search_range_from_working_distance():
+    from uav_depth.daemon.params import disparity_search_range
+
+    # ZED Mini-like 1280x720: f*B = 44.1 px*m; 0.3 m is d = 147 px, 3 m is 14.7 px.
+    assert disparity_search_range(700.0, 0.063, 0.3) == (0, 160)
+    assert disparity_search_range(700.0, 0.063, 0.3, scale=0.5) == (0, 80)
+    assert disparity_search_range(700.0, 0.063, 0.3, 3.0, scale=0.5) == (7, 80)
+    assert disparity_search_range(700.0, 0.063, 0.5) == (0, 96)
+    with pytest.raises(ConfigError, match="near_m must be a positive distance"):
+        disparity_search_range(700.0, 0.063, 0.0)
+    with pytest.raises(ConfigError, match="far_m must be greater than near_m"):
+        disparity_search_range(700.0, 0.063, 1.0, 0.5)
+    with pytest.raises(ConfigError, match="sgbm.num_disparities must be between 16 and 1024"):
+        disparity_search_range(700.0, 0.063, 0.01)
+
+
+def test_flight_parameter_file_is_the_documented_settings():
+    """deploy/params-flight.yaml is what benchmark.flight_params() says (regenerate it if this fails)."""
+    from pathlib import Path
+
+    from uav_depth.daemon.benchmark import flight_params
+
+    path = Path(__file__).resolve().parents[2] / "deploy" / "params-flight.yaml"
+    flight = load_params(path)
+    assert flight == flight_params()
+    assert flight.sgbm.mode == "sgbm_3way" and flight.compute.scale == 0.5 and flight.compute.grey

@@ -105,3 +105,21 @@ def test_texture_wrap_is_numpy_mod_bit_for_bit():
     for dtype in (np.float64, np.float32):
         xs = x.astype(dtype)
         assert np.array_equal(_wrap(xs), np.mod(xs, _TEX_SIZE))
+
+
+def test_background_period_is_where_the_background_repeats():
+    """The far plane's texture tile repeats every background_period_px in the image (the reason the
+    benchmark keeps that period outside the disparity search)."""
+    from uav_depth.daemon.scene import background_period_px
+
+    # 3 m tile / 1.25 * 700 px / 8.4 m = 200 px exactly
+    cfg = SceneConfig(width=640, height=120, focal_px=700.0, background_distance_m=8.4, texture_scale=1.25,
+                      n_branches=0, noise_std=0.0, branch_distance_m=0.5, seed=3)
+    assert background_period_px(cfg) == pytest.approx(200.0)
+    f = Scene(cfg).render()
+    bg = f.labels == 0
+    both = bg[:, :-200] & bg[:, 200:]
+    a, b = f.left[:, :-200].astype(int), f.left[:, 200:].astype(int)
+    c = f.left[:, 100:].astype(int)
+    assert np.median(np.abs(a - b)[both]) <= 1                               # one period: the same texture
+    assert np.median(np.abs(f.left[:, :-100].astype(int) - c)[bg[:, :-100] & bg[:, 100:]]) > 5   # half: not
