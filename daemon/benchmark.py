@@ -24,7 +24,7 @@ from typing import Any, Callable, Sequence
 import cv2
 import numpy as np
 
-from .disparity import DisparityPipeline
+from .disparity import DisparityPipeline, DisparityResult
 from .params import DEFAULT_PARAMS, StereoParams, disparity_search_range
 from .scene import Scene, SceneConfig, background_period_px, vary
 
@@ -38,13 +38,15 @@ FLIGHT_ROI = (0.33, 0.33, 0.67, 0.67)
 
 @dataclass(frozen=True)
 class BenchFrame:
-    """One pre-rendered pair with its truth: nearest branch surface in the centre third, m."""
+    """One pre-rendered pair with its truth: nearest branch surface in the centre third, m,
+    and the exact (H, W) float32 left disparity, px."""
 
     left: np.ndarray
     right: np.ndarray
     truth_m: float
     design_m: float
     scene: SceneConfig
+    disparity: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -145,7 +147,8 @@ def make_frames(n: int = 12, width: int = 1280, height: int = 720, seed: int = 0
             cfg = dc_replace(cfg, background_distance_m=float(rng.uniform(max(nearest, 0.6 * farthest),
                                                                           max(nearest, farthest))))
         frame = Scene(cfg).render(rng=rng)
-        out.append(BenchFrame(frame.left, frame.right, frame.nearest_branch_distance(cfg.center_roi), float(d), cfg))
+        out.append(BenchFrame(frame.left, frame.right, frame.nearest_branch_distance(cfg.center_roi), float(d), cfg,
+                              frame.disparity))
     return out
 
 
@@ -166,6 +169,8 @@ def lever_variants(flight: StereoParams, rounds: int, naive_rounds: int) -> list
         ("+scale", {"compute.scale": flight.compute.scale,
                     "sgbm.num_disparities": max(16, 16 * round(128 * flight.compute.scale / 16))}, rounds,
          "reduced resolution, same distance range as naive"),
+        ("+wls@matched", {"compute.wls_at": flight.compute.wls_at}, rounds,
+         "WLS at the matched resolution, then resized"),
     ]
     out = [Variant("naive", DEFAULT_PARAMS, naive_rounds, note="OpenCV sample: full frame, colour, SGBM+right+WLS")]
     p = DEFAULT_PARAMS
@@ -200,6 +205,20 @@ def _ranger_factory() -> Callable[[StereoParams, BenchFrame], Callable[[Any], fl
         return lambda result: ranger.measure(result).distance_m
 
     return make
+
+
+def ranging_floor(frames: Sequence[BenchFrame], max_distance_m: float = 2.0) -> dict[str, Any]:
+    """The ranging's own error: the exact disparity (every pixel measured, confidence 1) through the
+    daemon's ranging. No pipeline can do better than this on these frames."""
+    make_ranger = _ranger_factory()
+    errs = []
+    for f in frames:
+        d = np.where(np.isfinite(f.disparity), f.disparity, np.nan).astype(np.float32)
+        est = make_ranger(DEFAULT_PARAMS, f)(DisparityResult(d, d, np.ones_like(d)))
+        errs.append(None if est is None else (est - f.truth_m) / f.truth_m)
+    within = [abs(e) for e, f in zip(errs, frames) if e is not None and f.design_m <= max_distance_m + 1e-9]
+    return {"max_abs_rel_error": max(within) if within else None,
+            "median_abs_rel_error": float(np.median(within)) if within else None, "per_frame_rel_error": errs}
 
 
 def run(frames: Sequence[BenchFrame], variants: Sequence[Variant],
@@ -257,6 +276,7 @@ def bench(flight: StereoParams, frames: int = 12, rounds: int = 20, naive_rounds
                             note="OpenCV sample: full frame, colour, SGBM+right+WLS"),
                     Variant("flight", flight, rounds, note="the flight parameter file")]
     out = run(fr, variants, progress)
+    out["ranging_floor"] = ranging_floor(fr)
     out["machine"] = machine()
     out["frames"] = {"n": len(fr), "width": width, "height": height, "seed": seed, "colour": True,
                      "truth_m": [f.truth_m for f in fr], "render_s_per_pair": render_s / max(1, len(fr))}
@@ -268,15 +288,16 @@ def flight_params(focal_px: float = 700.0, baseline_m: float = 0.063, scale: flo
                   block_size: int = 3) -> StereoParams:
     """The recommended flight settings for a camera (ZED Mini at 1280x720 by default).
 
-    Centre third plus the search margin, half resolution, grey, SGBM 3-way, the
-    disparity range of the 0.3..3 m working distance, P1/P2 by OpenCV's rule for
-    one channel. ``deploy/params-flight.yaml`` is this for the defaults.
+    Centre third plus the search margin, half resolution, grey, SGBM 3-way, WLS
+    at the matched resolution, the disparity range of the 0.3..3 m working
+    distance, P1/P2 by OpenCV's rule for one channel. ``deploy/params-flight.yaml``
+    is this for the defaults.
     """
     min_d, num_d = disparity_search_range(focal_px, baseline_m, WORKING_NEAR_M, scale=scale)
     return DEFAULT_PARAMS.replace(**{
         "sgbm.mode": "sgbm_3way", "sgbm.min_disparity": min_d, "sgbm.num_disparities": num_d,
         "sgbm.block_size": block_size, "sgbm.p1": 8 * block_size ** 2, "sgbm.p2": 32 * block_size ** 2,
-        "compute.roi": list(FLIGHT_ROI), "compute.scale": scale, "compute.grey": True})
+        "compute.roi": list(FLIGHT_ROI), "compute.scale": scale, "compute.grey": True, "compute.wls_at": "matched"})
 
 
 def format_report(out: dict[str, Any]) -> str:
@@ -292,14 +313,20 @@ def format_report(out: dict[str, Any]) -> str:
             f"{'max err':>8s} {'med err':>8s} {'miss':>4s}  stages (median ms)")
     lines.append(head)
     lines.append("-" * len(head))
+    def pct(x: float | None) -> str:
+        return "-" if x is None else f"{100 * x:.2f}%"
+
     for v in out["variants"]:
-        def pct(x: float | None) -> str:
-            return "-" if x is None else f"{100 * x:.2f}%"
         ratio = "-" if v["speedup_vs_naive"] is None else f"{v['speedup_vs_naive']:.1f}"
         stages = " ".join(f"{k} {ms:.1f}" for k, ms in v["stages_median_ms"].items())
         lines.append(f"{v['name']:16s} {v['runs']:5d} {v['median_ms']:8.1f} {v['p99_ms']:8.1f} {v['fps']:7.1f} "
                      f"{ratio:>8s} {pct(v['max_abs_rel_error']):>8s} {pct(v['median_abs_rel_error']):>8s} "
                      f"{v['frames_without_estimate']:4d}  {stages}")
+    floor = out.get("ranging_floor")
+    if floor:
+        lines.append(f"{'exact disparity':16s} {'':5s} {'':8s} {'':8s} {'':7s} {'':8s} "
+                     f"{pct(floor['max_abs_rel_error']):>8s} {pct(floor['median_abs_rel_error']):>8s}       "
+                     "(the ranging alone, on ray-cast truth)")
     return "\n".join(lines)
 
 

@@ -226,17 +226,28 @@ class DisparityPipeline:
         laps.lap("assemble")
         right16 = self.right_matcher.compute(rm, lm)
         laps.lap("match_right")
-        # Given the full-resolution guide, OpenCV's WLS upsamples the low-resolution
-        # disparity itself (scaling values by the width ratio) and filters at full
-        # resolution, so edges follow the real image.
-        filtered16 = self.wls.filter(left16, lc, disparity_map_right=right16)
-        conf = self.wls.getConfidenceMap()
-        laps.lap("wls")
-        filt = filtered16.astype(np.float32) * np.float32(1.0 / 16.0)
-        # Below the smallest searched disparity (in input px) is invalid. OpenCV fills
-        # what lies outside its valid band with 16*(min_disparity-1), unscaled: with a
-        # negative min_disparity and upscaling that is not below the threshold.
-        filt[(filtered16 < sg.min_disparity * 16 * ratio) | (filtered16 == 16 * (sg.min_disparity - 1))] = np.nan
+        if cp.wls_at == "matched" and win.matched != crop_size:
+            # WLS at the matched resolution (a quarter of the pixels at scale 0.5), then
+            # resized: linear for the smooth filtered map (a NaN neighbour stays NaN).
+            filtered16 = self.wls.filter(left16, lm, disparity_map_right=right16)
+            conf = self.wls.getConfidenceMap()
+            laps.lap("wls")
+            filt = cv2.resize(_to_float(filtered16, sg.min_disparity, ratio), crop_size,
+                              interpolation=cv2.INTER_LINEAR)
+            conf = cv2.resize(conf, crop_size, interpolation=cv2.INTER_LINEAR)
+        else:
+            # Given the full-resolution guide, OpenCV's WLS upsamples the low-resolution
+            # disparity itself (scaling values by the width ratio) and filters at full
+            # resolution, so edges follow the real image.
+            filtered16 = self.wls.filter(left16, lc, disparity_map_right=right16)
+            conf = self.wls.getConfidenceMap()
+            laps.lap("wls")
+            filt = filtered16.astype(np.float32) * np.float32(1.0 / 16.0)
+            # Below the smallest searched disparity (in input px) is invalid. OpenCV fills
+            # what lies outside its valid band with 16*(min_disparity-1), unscaled: with a
+            # negative min_disparity and upscaling that is not below the threshold.
+            filt[(filtered16 < sg.min_disparity * 16 * ratio)
+                 | (filtered16 == 16 * (sg.min_disparity - 1))] = np.nan
         disparity[outer] = filt[inner]
         confidence[outer] = np.clip(conf[inner] * np.float32(1.0 / 255.0), 0.0, 1.0)  # type: ignore[index]
         laps.lap("assemble")

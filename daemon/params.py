@@ -149,6 +149,9 @@ SPECS: tuple[Spec, ...] = (
          "matching resolution as a fraction of the input; sgbm.* then count matched pixels, disparities "
          "come back in input pixels", 0.125, 1.0),
     Spec("compute", "grey", bool, False, "match grey images (colour input converted first)"),
+    Spec("compute", "wls_at", str, "input",
+         "with scale < 1: WLS filters at the input resolution with the full-resolution guide, or at the "
+         "matched resolution and is resized", choices=("input", "matched")),
 )
 
 SPEC_BY_KEY: dict[str, Spec] = {s.key: s for s in SPECS}
@@ -197,6 +200,7 @@ class ComputeParams:
     roi: tuple[float, float, float, float] = (0.0, 0.0, 1.0, 1.0)
     scale: float = 1.0
     grey: bool = False
+    wls_at: str = "input"
 
     @property
     def is_baseline(self) -> bool:

@@ -36,7 +36,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--width/--height", "must be at least 64", f"{args.width}x{args.height}")
     if args.threads is not None and args.threads < 0:
         raise ConfigError("--threads", "must be 0 (no threading) or more", args.threads)
-    flight = load_params(args.params) if args.params else flight_params()
+    # The built-in flight settings are for the ZED Mini-like camera the scenes model (700 px at 1280 wide).
+    flight = load_params(args.params) if args.params else flight_params(focal_px=700.0 * args.width / 1280.0)
     progress = None if args.json else (lambda msg: print(f"... {msg}", file=sys.stderr, flush=True))
     out = bench(flight, frames=args.frames, rounds=args.rounds, naive_rounds=args.naive_rounds, width=args.width,
                 height=args.height, seed=args.seed, levers=args.levers, threads=args.threads, progress=progress)

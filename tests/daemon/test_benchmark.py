@@ -54,16 +54,26 @@ def test_interleaved_run_reports_every_variant_on_every_frame(frames):
                                                                   for p in by["fast-1thread"]["per_frame"]]
 
 
+def test_ranging_floor_is_the_ranging_on_exact_disparity(frames):
+    from uav_depth.daemon.benchmark import ranging_floor
+
+    floor = ranging_floor(frames)
+    assert len(floor["per_frame_rel_error"]) == len(frames)
+    assert all(e is not None and abs(e) < 0.2 for e in floor["per_frame_rel_error"])
+    assert floor["max_abs_rel_error"] >= floor["median_abs_rel_error"] >= 0
+
+
 def test_lever_ladder_adds_one_lever_at_a_time():
     flight = flight_params()
     ladder = lever_variants(flight, rounds=4, naive_rounds=1)
     names = [v.name for v in ladder]
-    assert names[:6] == ["naive", "+roi", "+grey", "+3way", "+scale", "flight"]
-    assert ladder[0].params == DEFAULT_PARAMS and ladder[5].params == flight
+    assert names[:7] == ["naive", "+roi", "+grey", "+3way", "+scale", "+wls@matched", "flight"]
+    assert ladder[0].params == DEFAULT_PARAMS and ladder[6].params == flight
+    assert ladder[5].params.compute.wls_at == "matched" and ladder[4].params.compute.wls_at == "input"
     assert ladder[1].params.compute.roi == flight.compute.roi and ladder[1].params.compute.scale == 1.0
     assert ladder[3].params.sgbm.mode == "sgbm_3way" and not ladder[3].params.compute.scale < 1
     assert ladder[4].params.compute.scale == 0.5 and ladder[4].params.sgbm.num_disparities == 64
-    assert "num_disparities=80" in ladder[5].note
+    assert "num_disparities=80" in ladder[6].note
 
 
 def test_cli_bench_json_and_table(tmp_path):
@@ -74,6 +84,7 @@ def test_cli_bench_json_and_table(tmp_path):
     doc = json.loads(proc.stdout)
     assert [v["name"] for v in doc["variants"]] == ["naive", "flight"]
     assert doc["machine"]["cores"] >= 1 and doc["machine"]["opencv"]
+    assert "ranging_floor" in doc and doc["frames"]["n"] == 2
     table = format_report(doc)
     assert "x naive" in table and "flight" in table
     bad = subprocess.run([*args[:4], "--frames", "0"], capture_output=True, text=True, timeout=60)

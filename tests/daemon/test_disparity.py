@@ -120,7 +120,8 @@ ROI = [0.3, 0.25, 0.7, 0.75]
     {"compute.roi": ROI, "compute.scale": 0.5, "sgbm.num_disparities": 64, "sgbm.mode": "sgbm_3way",
      "compute.grey": True},
     {"compute.scale": 0.5, "sgbm.num_disparities": 64},
-], ids=["roi", "roi-half", "roi-half-3way-grey", "half-full-frame"])
+    {"compute.roi": ROI, "compute.scale": 0.5, "sgbm.num_disparities": 64, "compute.wls_at": "matched"},
+], ids=["roi", "roi-half", "roi-half-3way-grey", "half-full-frame", "roi-half-wls-matched"])
 def test_levers_keep_the_contract_and_the_branch_disparity(small_frame, changes):
     """Full-size maps in input pixels whatever the levers; NaN (confidence 0) outside the region;
     the branch's disparity within a pixel of the truth."""
@@ -147,13 +148,15 @@ def test_levers_keep_the_contract_and_the_branch_disparity(small_frame, changes)
     assert all(v >= 0 for v in res.timings_ms.values())
 
 
-@pytest.mark.parametrize("key,value", [("compute.roi", [0.2, 0.2, 0.8, 0.8]), ("compute.scale", 0.5),
-                                       ("compute.grey", True)], ids=["roi", "scale", "grey"])
-def test_each_lever_is_live(motorcycle, key, value):
+@pytest.mark.parametrize("key,value,base", [
+    ("compute.roi", [0.2, 0.2, 0.8, 0.8], {}), ("compute.scale", 0.5, {}), ("compute.grey", True, {}),
+    ("compute.wls_at", "matched", {"compute.scale": 0.5})], ids=["roi", "scale", "grey", "wls_at"])
+def test_each_lever_is_live(motorcycle, key, value, base):
     """Each lever changes the disparity inside its region, so the tuner must score with it."""
     left, right, _ = motorcycle
-    base = DisparityPipeline(DEFAULT_PARAMS).compute(left, right)
-    changed = DisparityPipeline(DEFAULT_PARAMS.replace(**{key: value})).compute(left, right)
+    start = DEFAULT_PARAMS.replace(**base)
+    base = DisparityPipeline(start).compute(left, right)
+    changed = DisparityPipeline(start.replace(**{key: value})).compute(left, right)
     both = np.isfinite(base) & np.isfinite(changed)
     assert both.mean() > 0.2
     assert (base[both] != changed[both]).mean() > 0.01, f"{key} has no effect"

@@ -91,7 +91,8 @@ def test_compute_defaults_are_the_full_frame_baseline():
     cp = DEFAULT_PARAMS.compute
     assert cp.is_baseline and cp.roi == (0.0, 0.0, 1.0, 1.0) and cp.scale == 1.0 and cp.grey is False
     assert cp.roi_pixels(1280, 720) == (0, 0, 1280, 720)
-    assert DEFAULT_PARAMS.to_dict()["compute"] == {"roi": [0.0, 0.0, 1.0, 1.0], "scale": 1.0, "grey": False}
+    assert DEFAULT_PARAMS.to_dict()["compute"] == {"roi": [0.0, 0.0, 1.0, 1.0], "scale": 1.0, "grey": False,
+                                                   "wls_at": "input"}
 
 
 def test_compute_keys_round_trip_and_region_is_written_on_one_line(tmp_path):
@@ -130,6 +131,7 @@ BAD_COMPUTE = [
     ("scale-range", {"compute": {"scale": 0.1}}, "compute.scale must be between 0.125 and 1, but got 0.1"),
     ("scale-up", {"compute": {"scale": 2}}, "compute.scale must be between 0.125 and 1, but got 2.0"),
     ("grey-bool", {"compute": {"grey": 1}}, "compute.grey must be true or false, but got 1"),
+    ("wls-at", {"compute": {"wls_at": "half"}}, "compute.wls_at must be one of input, matched, but got 'half'"),
     ("unknown", {"compute": {"threads": 2}}, "compute.threads is not a known key"),
 ]
 
