@@ -32,9 +32,9 @@ from .disparity import DisparityResult
 from .errors import ConfigError
 from .params import StereoParams
 
-#: Disparity margin around the object's depth band, px: SGBM's typical matching noise.
+#: Disparity margin around the object's depth band, matched px: SGBM's typical matching noise.
 CLUSTER_MARGIN_PX = 1.0
-#: Floor of the disparity uncertainty, px. SGBM's sub-pixel estimate is pulled toward whole
+#: Floor of the disparity uncertainty, matched px. SGBM's sub-pixel estimate is pulled toward whole
 #: pixels ("pixel locking", seen on the synthetic scenes as coherent errors up to 0.45 px over a
 #: whole branch), so even a perfectly tight cluster is only known to about +-0.5 px: a uniform
 #: error of that width has sigma 1/sqrt(12).
@@ -113,12 +113,14 @@ class Ranger:
         self.params = params
         self.fb = calibration.focal_px * calibration.baseline_m
         sg = params.sgbm
-        d_max = sg.min_disparity + sg.num_disparities - 1      # largest disparity SGBM can return, px
+        # With compute.scale < 1 SGBM counts matched pixels; disparities come back in input pixels.
+        self.px = 1.0 / params.compute.scale          # input pixels per matched pixel
+        d_max = (sg.min_disparity + sg.num_disparities - 1) * self.px   # largest disparity returned, px
         if d_max <= 0:
             raise ConfigError("sgbm.num_disparities", "must reach positive disparities for ranging",
                               sg.num_disparities)
         # Farther than max_distance_m (or than the smallest searched disparity) is "no measurement".
-        self.d_floor = max(self.fb / config.max_distance_m, float(sg.min_disparity), 1.0 / 16.0)
+        self.d_floor = max(self.fb / config.max_distance_m, sg.min_disparity * self.px, 1.0 / 16.0)
         self.limits = RangeLimits(min_distance_m=self.fb / d_max, max_distance_m=self.fb / self.d_floor,
                                   hfov_rad=_fov(roi[0], roi[2], calibration.principal_point[0],
                                                 calibration.focal_px),
@@ -147,8 +149,9 @@ class Ranger:
         weights = conf[ys, xs].astype(np.float64) if conf is not None else np.ones_like(vals)
         k = cfg.min_valid_px
         front = float(np.partition(vals, vals.size - k)[vals.size - k])    # the k-th largest disparity
-        lower = self.fb / (self.fb / front + cfg.cluster_depth_m) - CLUSTER_MARGIN_PX
-        member = (vals >= lower) & (vals <= front + CLUSTER_MARGIN_PX)
+        margin = CLUSTER_MARGIN_PX * self.px
+        lower = self.fb / (self.fb / front + cfg.cluster_depth_m) - margin
+        member = (vals >= lower) & (vals <= front + margin)
         n_obj = int(member.sum())
         if n_obj < k:   # cannot happen for k <= members, kept as a guard for degenerate margins
             return Measurement(None, n_px=n_obj, valid_fraction=valid_fraction, reason="no significant object")
@@ -156,7 +159,7 @@ class Ranger:
         if not w.sum() > 0:
             w = np.ones_like(v)
         d = _weighted_median(v, w)
-        sigma_d = max(1.4826 * _weighted_median(np.abs(v - d), w), PIXEL_LOCKING_SIGMA_PX)
+        sigma_d = max(1.4826 * _weighted_median(np.abs(v - d), w), PIXEL_LOCKING_SIGMA_PX * self.px)
         z = self.fb / d
         sigma_z = z * z / self.fb * sigma_d
         mean_conf = float(w.mean()) if conf is not None else 1.0

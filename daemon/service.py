@@ -122,17 +122,18 @@ class _Stats:
 
 
 def compute_roi_px(params: StereoParams, width: int, height: int) -> tuple[int, int, int, int] | None:
-    """The matching ROI of a ``compute:`` parameter section (image fractions) in px, if the schema has one.
+    """The matching region ``compute.roi`` in px (None when it is the whole image).
 
     Outside it the pipeline leaves disparity NaN; ranging outside it finds nothing.
     """
     compute = getattr(params, "compute", None)
-    roi = getattr(compute, "roi", None) if compute is not None else None
-    if roi is None:
+    if compute is None or tuple(compute.roi) == (0.0, 0.0, 1.0, 1.0):
         return None
-    fx0, fy0, fx1, fy1 = (float(v) for v in roi)
-    return (int(math.floor(fx0 * width)), int(math.floor(fy0 * height)), int(math.ceil(fx1 * width)),
-            int(math.ceil(fy1 * height)))
+    if hasattr(compute, "roi_pixels"):
+        return tuple(compute.roi_pixels(width, height))
+    fx0, fy0, fx1, fy1 = (float(v) for v in compute.roi)
+    return (int(math.floor(fx0 * width + 0.5)), int(math.floor(fy0 * height + 0.5)),
+            int(math.floor(fx1 * width + 0.5)), int(math.floor(fy1 * height + 0.5)))
 
 
 def check_roi_against_compute(roi: tuple[int, int, int, int], params: StereoParams, width: int,

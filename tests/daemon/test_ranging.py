@@ -102,6 +102,28 @@ def test_limits_from_disparity_range_calibration_and_roi():
     assert r.limits.vfov_rad == pytest.approx(2 * math.atan(60 / 350.0), rel=0.02)
 
 
+def test_limits_and_uncertainty_follow_the_matching_scale():
+    half = PARAMS.replace(**{"compute.scale": 0.5})
+    r = ranger(params=half)
+    fb = 350.0 * 0.063
+    assert r.limits.min_distance_m == pytest.approx(fb / 126)     # 63 matched px are 126 input px
+    m = r.measure(_result(np.full((360, 640), 22.0, np.float32)))
+    assert m.sigma_px == pytest.approx(2 / math.sqrt(12))         # pixel locking in matched pixels
+
+
+def test_flight_parameters_range_the_branch():
+    """The deploy flight file's levers (centre ROI, half scale, grey, 3-way) measure as well."""
+    from pathlib import Path
+    from uav_depth.daemon.params import load_params
+
+    flight = load_params(Path(__file__).resolve().parents[2] / "deploy" / "params-flight.yaml")
+    cfg = SceneConfig(width=1280, height=720, focal_px=700.0, branch_distance_m=1.2, seed=5)
+    frame = Scene(cfg).render(rng=np.random.default_rng(5))
+    m = Ranger(RangingConfig(), cfg.calibration, cfg.center_roi, flight).measure(
+        DisparityPipeline(flight).run(frame.left, frame.right))
+    assert m.valid and m.distance_m == pytest.approx(frame.nearest_branch_distance(cfg.center_roi), rel=0.03)
+
+
 def test_roi_must_fit_the_image():
     assert resolve_roi(None, 640, 360) == (213, 120, 426, 240)
     with pytest.raises(ConfigError, match=r"ranging.roi must lie inside the 640x360 rectified image"):

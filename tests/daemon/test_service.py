@@ -3,7 +3,6 @@
 import socket
 import threading
 import time
-from types import SimpleNamespace
 
 import pytest
 
@@ -201,8 +200,8 @@ def test_an_invalid_parameter_file_fails_start_up(rx, tmp_path):
 
 
 def test_ranging_roi_outside_the_matching_roi_is_warned():
-    params = SimpleNamespace(compute=SimpleNamespace(roi=(0.25, 0.25, 0.75, 0.75)))
+    params = PARAMS_64.replace(**{"compute.roi": (0.25, 0.25, 0.75, 0.75)})
     assert check_roi_against_compute((213, 120, 426, 240), params, 640, 360) is None
     warning = check_roi_against_compute((0, 0, 640, 360), params, 640, 360)
     assert "reaches outside the parameters' matching region compute.roi (= [160, 90, 480, 270] px" in warning
-    assert check_roi_against_compute((0, 0, 640, 360), PARAMS_64, 640, 360) is None   # no compute section
+    assert check_roi_against_compute((0, 0, 640, 360), PARAMS_64, 640, 360) is None   # the whole image
