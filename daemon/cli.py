@@ -28,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "synth": ("uav_depth.daemon.commands.synth", "write a synthetic stereo session with exact reference disparity"),
     "disparity": ("uav_depth.daemon.commands.disparity", "compute the disparity of one stereo pair"),
     "evaluate": ("uav_depth.tuning.commands.evaluate", "score the pipeline against reference disparity in a log"),
+    "tune": ("uav_depth.tuning.commands.tune", "search SGBM+WLS parameters on a log (the paper's GA and better)"),
     "params": ("uav_depth.daemon.commands.params", "print the default parameter file or check one"),
     "bench": ("uav_depth.daemon.commands.bench",
               "time the daemon pipeline against OpenCV's sample pipeline on synthetic scenes (prints figures)"),

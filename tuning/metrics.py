@@ -116,3 +116,16 @@ def score(reference: np.ndarray, estimate: np.ndarray) -> Scores:
 
 
 METRICS = {"mse": mse, "psnr": psnr, "ssim": ssim}
+
+
+# -- branch-aware: the number the drone uses ---------------------------------------------------------------------
+
+#: Error charged to a frame whose branch distance could not be measured, %; also the cap of one frame's error.
+BRANCH_MISS_PCT = 100.0
+
+
+def branch_error(estimate_m: float | None, truth_m: float) -> float:
+    """Relative branch-distance error in %, capped at BRANCH_MISS_PCT; no measurement costs BRANCH_MISS_PCT."""
+    if estimate_m is None or not math.isfinite(estimate_m):
+        return BRANCH_MISS_PCT
+    return float(min(abs(estimate_m - truth_m) / truth_m * 100.0, BRANCH_MISS_PCT))

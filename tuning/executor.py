@@ -1,0 +1,227 @@
+"""The one seam every evaluation goes through: serial, a local process pool, or Ray.
+
+An executor is built with the frame sets and the fitness name; it hands them to
+each worker once (pool initializer, Ray object store), then evaluates
+:class:`~uav_depth.tuning.objective.Task` s. ``imap`` yields ``(index, Evaluation)``
+as each finishes, so the caller can store every result at once; the caller puts
+them back in order, which is why the number of workers never changes a result.
+
+Every worker evaluates with OpenCV limited to one thread: the parallelism is
+across candidates (SGBM's default mode is single-threaded anyway), and the
+sgbm_3way and hh4 modes split the image into stripes by thread count, so their
+output depends on it (verified on 5.0.0); one thread everywhere keeps results
+identical for 1 or N workers.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+from collections import deque
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from typing import Iterator, Mapping, Protocol, Sequence
+
+from uav_depth.daemon.errors import ConfigError, DependencyError
+
+from .frames import FrameSet
+from .objective import Evaluation, Objective, Task
+
+#: OpenCV threads per evaluating process (see the module docstring).
+EVAL_THREADS = 1
+
+
+class Executor(Protocol):
+    workers: int
+    kind: str
+
+    def imap(self, tasks: Sequence[Task], stop: threading.Event | None = None) -> Iterator[tuple[int, Evaluation]]:
+        """Evaluate ``tasks``; yield (index, evaluation) as each finishes. After ``stop``
+        is set, start nothing new, yield what was already running, and return."""
+        ...
+
+    def close(self) -> None: ...
+
+
+def run_all(executor: Executor, tasks: Sequence[Task]) -> list[Evaluation]:
+    """``map``: every task's evaluation, in task order."""
+    out: list[Evaluation | None] = [None] * len(tasks)
+    for i, ev in executor.imap(tasks):
+        out[i] = ev
+    return out  # type: ignore[return-value]
+
+
+def _set_cv_threads(n: int) -> int:
+    import cv2
+
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(n)
+    return before
+
+
+class SerialExecutor:
+    """Evaluates in the calling process, one task after another."""
+
+    kind = "serial"
+
+    def __init__(self, framesets: Mapping[str, FrameSet], fitness: str):
+        self.workers = 1
+        self.objective = Objective(framesets, fitness)
+        self._threads_before = _set_cv_threads(EVAL_THREADS)
+
+    def imap(self, tasks, stop=None):
+        for i, task in enumerate(tasks):
+            if stop is not None and stop.is_set():
+                return
+            yield i, self.objective(task)
+
+    def close(self) -> None:
+        _set_cv_threads(self._threads_before)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+_WORKER_OBJECTIVE: Objective | None = None
+
+
+def _init_worker(framesets: Mapping[str, FrameSet], fitness: str) -> None:
+    """Pool initializer: the frames arrive here, once per worker process."""
+    global _WORKER_OBJECTIVE
+    # Ctrl-C in a terminal reaches the whole process group; the parent decides
+    # what stops, a worker finishes its candidate so the result is kept.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _set_cv_threads(EVAL_THREADS)
+    _WORKER_OBJECTIVE = Objective(framesets, fitness)
+
+
+def _run_task(task: Task) -> Evaluation:
+    assert _WORKER_OBJECTIVE is not None, "worker not initialised"
+    return _WORKER_OBJECTIVE(task)
+
+
+class ProcessExecutor:
+    """A local pool of ``workers`` processes (spawned: no fork of a threaded parent)."""
+
+    kind = "process"
+
+    def __init__(self, framesets: Mapping[str, FrameSet], fitness: str, workers: int):
+        import multiprocessing
+
+        if workers < 1:
+            raise ConfigError("--workers", "must be at least 1", workers)
+        self.workers = workers
+        self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                        initializer=_init_worker, initargs=(dict(framesets), fitness))
+
+    def imap(self, tasks, stop=None):
+        futures = {self.pool.submit(_run_task, t): i for i, t in enumerate(tasks)}
+        pending = set(futures)
+        while pending:
+            done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+            for f in sorted(done, key=futures.__getitem__):
+                if not f.cancelled():
+                    yield futures[f], f.result()
+            if stop is not None and stop.is_set():
+                for f in pending:
+                    f.cancel()
+                pending = {f for f in pending if not f.cancelled()}
+
+    def close(self) -> None:
+        self.pool.shutdown(wait=True, cancel_futures=True)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class _RayWorker:
+    """A Ray actor holding the frames (from the object store, once) and the fitness."""
+
+    def __init__(self, payload):
+        framesets, fitness = payload
+        _set_cv_threads(EVAL_THREADS)
+        self.objective = Objective(framesets, fitness)
+
+    def evaluate(self, task: Task) -> Evaluation:
+        return self.objective(task)
+
+
+class RayExecutor:
+    """``workers`` Ray actors, each holding the frames; ``address`` None or "local" starts a local Ray.
+
+    On a cluster (``address`` "auto" or "ray://host:10001") every node needs
+    uav-depth installed; the frames travel through Ray's object store, so the
+    nodes do not need the log directory.
+    """
+
+    kind = "ray"
+
+    def __init__(self, framesets: Mapping[str, FrameSet], fitness: str, workers: int | None,
+                 address: str | None = None):
+        try:
+            import ray
+        except ImportError as exc:
+            raise DependencyError("ray", "ray", "tuning with --ray-address") from exc
+        self._ray = ray
+        self._owns = not ray.is_initialized()
+        if self._owns:
+            local = address in (None, "", "local")
+            ray.init(address=None if local else address, num_cpus=(workers or os.cpu_count()) if local else None,
+                     include_dashboard=False, log_to_driver=False, configure_logging=False)
+        n = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
+        self.workers = n
+        payload = ray.put((dict(framesets), fitness))
+        actor = ray.remote(num_cpus=1)(_RayWorker)
+        self.actors = [actor.remote(payload) for _ in range(n)]
+
+    def imap(self, tasks, stop=None):
+        ray = self._ray
+        queue = deque(enumerate(tasks))
+        idle = list(self.actors)
+        running: dict = {}
+        while queue or running:
+            while queue and idle and not (stop is not None and stop.is_set()):
+                i, task = queue.popleft()
+                a = idle.pop()
+                running[a.evaluate.remote(task)] = (i, a)
+            if not running:
+                return
+            ready, _ = ray.wait(list(running), num_returns=1, timeout=0.5)
+            for ref in ready:
+                i, a = running.pop(ref)
+                idle.append(a)
+                yield i, ray.get(ref)
+            if stop is not None and stop.is_set():
+                queue.clear()
+
+    def close(self) -> None:
+        for a in self.actors:
+            self._ray.kill(a)
+        if self._owns:
+            self._ray.shutdown()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def make_executor(framesets: Mapping[str, FrameSet], fitness: str, workers: int | None = None,
+                  ray_address: str | None = None) -> Executor:
+    """Serial for one worker, a process pool for more, Ray when ``ray_address`` is given.
+
+    ``workers`` None: all cores of this machine (all CPUs of the Ray cluster).
+    """
+    if ray_address:
+        return RayExecutor(framesets, fitness, workers, ray_address)
+    n = workers if workers is not None else (os.cpu_count() or 1)
+    if n < 1:
+        raise ConfigError("--workers", "must be at least 1", n)
+    return SerialExecutor(framesets, fitness) if n == 1 else ProcessExecutor(framesets, fitness, n)

@@ -1,0 +1,136 @@
+"""Optimisers behind one ask/tell interface, in one name -> factory table.
+
+An optimiser proposes one batch (a *generation*) of genomes per ``ask()`` and
+receives their utilities (larger is better, -inf for a failed candidate) in
+``tell()``. Every optimiser spends the same budget: ``generations`` batches of
+``population`` proposals. Randomness comes only from the numpy Generator
+handed in.
+
+- ``ga-paper``: the paper's GA on the paper's 29 genes (faithful mode).
+- ``ga``: a real-coded GA on the improved space, started from the base
+  parameters.
+- ``random``: uniform random search on the improved space (plus the base).
+- ``tpe``: Optuna's tree-structured Parzen estimator on the improved space
+  (plus the base).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+from typing import Any, Callable, Protocol, Sequence
+
+import numpy as np
+
+from uav_depth.daemon.params import StereoParams
+
+from . import ga
+from .space import PaperSpace, SchemaSpace, Space
+
+
+class Optimizer(Protocol):
+    def ask(self) -> list[list]: ...
+
+    def tell(self, utilities: Sequence[float]) -> None: ...
+
+
+#: The improved GA starts from the base and this fraction of the population drawn around it.
+GA_LOCAL_FRACTION = 1 / 3
+#: Spread (std, in unit gene space) of those neighbours.
+GA_LOCAL_SIGMA = 0.1
+
+
+def paper_ga(space: Space, population: int, rng: np.random.Generator, base: StereoParams) -> Optimizer:
+    """The paper: random start, two-point crossover 0.6, uniform integer mutation 0.3 per gene,
+    top 5 carried over, parents by tournament of 3 (the paper does not say)."""
+    elite = min(5, population - 1)
+    return ga.GeneticAlgorithm(space, population, rng, ga.TwoPointCrossover(0.6),
+                               ga.UniformIntMutation(int(min(space.low)), int(max(space.up)), 0.3),
+                               ga.TournamentSelection(3), elite=elite, dtype=int)
+
+
+def improved_ga(space: Space, population: int, rng: np.random.Generator, base: StereoParams) -> Optimizer:
+    """Real-coded GA: the base and neighbours of it in the first generation, SBX crossover,
+    polynomial mutation, tournament of 3, two elites."""
+    start = space.encode(base)
+    initial = [start]
+    for _ in range(max(0, int(population * GA_LOCAL_FRACTION) - 1)):
+        initial.append(np.clip(start + rng.normal(0.0, GA_LOCAL_SIGMA, start.shape), 0.0, 1.0))
+    return ga.GeneticAlgorithm(space, population, rng, ga.SBXCrossover(0.9, 15.0), ga.PolynomialMutation(20.0),
+                               ga.TournamentSelection(3), elite=min(2, population - 1), initial=initial,
+                               dtype=float)
+
+
+class RandomSearch:
+    """Uniform samples of the space; the base first."""
+
+    def __init__(self, space: Space, population: int, rng: np.random.Generator, base: StereoParams):
+        self.space, self.n, self.rng = space, population, rng
+        self.first = [space.encode(base)]
+
+    def ask(self) -> list[list]:
+        batch = [list(g) for g in self.first]
+        self.first = []
+        while len(batch) < self.n:
+            batch.append(list(self.space.sample(self.rng)))
+        return batch
+
+    def tell(self, utilities: Sequence[float]) -> None:
+        pass
+
+
+class TPESearch:
+    """Optuna's TPE (multivariate), asked a whole generation at a time; the base is enqueued first."""
+
+    def __init__(self, space: Space, population: int, rng: np.random.Generator, base: StereoParams):
+        import optuna
+
+        optuna.logging.set_verbosity(optuna.logging.WARNING)
+        self._fail = optuna.trial.TrialState.FAIL
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+            sampler = optuna.samplers.TPESampler(seed=int(rng.integers(0, 2**31 - 1)), multivariate=True)
+        self.study = optuna.create_study(direction="maximize", sampler=sampler)
+        self.names = [f"g{i:02d}" for i in range(space.size)]
+        self.study.enqueue_trial(dict(zip(self.names, map(float, space.encode(base)))))
+        self.n = population
+        self.trials: list = []
+
+    def ask(self) -> list[list]:
+        self.trials = [self.study.ask() for _ in range(self.n)]
+        return [[t.suggest_float(name, 0.0, 1.0) for name in self.names] for t in self.trials]
+
+    def tell(self, utilities: Sequence[float]) -> None:
+        for t, u in zip(self.trials, utilities):
+            if math.isnan(u) or u == -math.inf:
+                self.study.tell(t, state=self._fail)
+            else:
+                self.study.tell(t, min(u, 1e300))
+
+
+@dataclass(frozen=True)
+class OptimizerSpec:
+    name: str
+    space: str  # "paper" or "schema"
+    factory: Callable[[Space, int, np.random.Generator, StereoParams], Optimizer]
+    doc: str
+
+
+OPTIMIZERS: dict[str, OptimizerSpec] = {
+    "ga-paper": OptimizerSpec("ga-paper", "paper", paper_ga, "the paper's GA on the paper's 29 genes (faithful)"),
+    "ga": OptimizerSpec("ga", "schema", improved_ga, "real-coded GA on the improved space, from the base"),
+    "random": OptimizerSpec("random", "schema", RandomSearch, "uniform random search on the improved space"),
+    "tpe": OptimizerSpec("tpe", "schema", TPESearch, "Optuna TPE on the improved space"),
+}
+
+
+def make_space(optimizer: str, keys: Sequence[str] | None = None) -> Space:
+    spec = OPTIMIZERS[optimizer]
+    if spec.space == "paper":
+        return PaperSpace()
+    return SchemaSpace(tuple(keys)) if keys else SchemaSpace()
+
+
+def describe(optimizer: str) -> dict[str, Any]:
+    return {"name": optimizer, "space": OPTIMIZERS[optimizer].space, "doc": OPTIMIZERS[optimizer].doc}

@@ -1,0 +1,189 @@
+"""The tuning report: JSON summary, convergence and Pareto plots, the paper-style table, images.
+
+Files written into the report directory:
+
+- ``summary.json``: configuration, per-run results and histories, baseline vs
+  tuned metrics on train and held-out frames, the Pareto front, timings;
+- ``table.md``: the change of MSE, PSNR, SSIM, bad-2 (and branch error when
+  known) of the tuned parameters against the manual baseline, train and
+  held-out, next to the paper's reported change;
+- ``convergence.png``: best fitness so far per generation, mean +- std over runs
+  (the paper's figure), with the baseline as a line;
+- ``pareto.png``: fitness against frame time for every evaluated candidate;
+- ``frames/*.png``: reference | manual | tuned disparity side by side;
+- ``config.yaml``: the resolved configuration of the run.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import yaml
+
+from uav_depth.daemon.disparity import DisparityPipeline
+from uav_depth.daemon.params import StereoParams
+from uav_depth.daemon.session import colourise
+
+from .frames import FrameSet
+from .objective import FITNESS, Evaluation
+
+#: The paper's reported change of its tuned parameters against its manual configuration, %.
+PAPER_CHANGE = {"mse": -42.86, "psnr": 8.47, "ssim": 28.52}
+TABLE_METRICS = ("mse", "psnr", "ssim", "bad2", "branch", "valid")
+
+
+def change_pct(base: float, tuned: float) -> float:
+    """(tuned - base) / |base| in %, NaN when undefined."""
+    if not (math.isfinite(base) and math.isfinite(tuned)) or base == 0:
+        return math.nan
+    return (tuned - base) / abs(base) * 100.0
+
+
+def comparison(baseline: Mapping[str, Evaluation], tuned: Mapping[str, Evaluation]) -> dict[str, dict]:
+    """{set: {metric: {"manual", "tuned", "change_pct"}}} from full evaluations per frame set."""
+    out: dict[str, dict] = {}
+    for name in baseline:
+        b, t = baseline[name], tuned[name]
+        rows = {}
+        for m in TABLE_METRICS:
+            if m in b.metrics and m in t.metrics:
+                rows[m] = {"manual": b.metrics[m], "tuned": t.metrics[m],
+                           "change_pct": change_pct(b.metrics[m], t.metrics[m])}
+        rows["ms"] = {"manual": b.ms, "tuned": t.ms, "change_pct": change_pct(b.ms, t.ms)}
+        out[name] = {"frames": len(b.per_frame), "status": {"manual": b.status, "tuned": t.status},
+                     "metrics": rows}
+    return out
+
+
+def table_markdown(cmp: Mapping[str, dict], metric: str) -> str:
+    lines = [f"Tuned ({metric}) vs manual baseline. Paper: its tuned vs manual configuration, one pair.", "",
+             "| frames | metric | manual | tuned | change | paper's change |", "|---|---|---|---|---|---|"]
+    for name, block in cmp.items():
+        for m, row in block["metrics"].items():
+            paper = f"{PAPER_CHANGE[m]:+.2f}%" if m in PAPER_CHANGE else ""
+            lines.append(f"| {name} ({block['frames']}) | {m} | {_f(row['manual'])} | {_f(row['tuned'])} | "
+                         f"{_pct(row['change_pct'])} | {paper} |")
+    return "\n".join(lines) + "\n"
+
+
+def _f(x: float) -> str:
+    if not isinstance(x, (int, float)) or not math.isfinite(x):
+        return str(x)
+    return f"{x:.4g}" if abs(x) < 1000 else f"{x:.0f}"
+
+
+def _pct(x: float) -> str:
+    return "n/a" if not math.isfinite(x) else f"{x:+.2f}%"
+
+
+def _clean(obj: Any) -> Any:
+    """JSON-safe copy: non-finite floats become null."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, Mapping):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, (np.floating, np.integer)):
+        return _clean(obj.item())
+    return obj
+
+
+def plot_convergence(path: Path, histories: Sequence[Sequence[float]], baseline: float, metric: str,
+                     title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    h = np.array([[v if math.isfinite(v) else np.nan for v in run] for run in histories], dtype=float)
+    gens = np.arange(1, h.shape[1] + 1)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mean, std = np.nanmean(h, axis=0), np.nanstd(h, axis=0)
+    ax.plot(gens, mean, label=f"best so far, mean of {h.shape[0]} run(s)")
+    if h.shape[0] > 1:
+        ax.fill_between(gens, mean - std, mean + std, alpha=0.3, label="+- std")
+    if math.isfinite(baseline):
+        ax.axhline(baseline, color="k", ls="--", lw=1, label="manual baseline")
+    ax.set_xlabel("generation")
+    ax.set_ylabel(metric)
+    ax.set_title(title)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_pareto(path: Path, points: Sequence[tuple[float, float]], front: Sequence[Mapping[str, Any]],
+                chosen: Mapping[str, Any] | None, metric: str, max_ms: float | None) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    if points:
+        ms, val = zip(*points)
+        ax.scatter(ms, val, s=6, alpha=0.4, label="evaluated (search timing)")
+    if front:
+        ax.plot([f["ms"] for f in front], [f["value"] for f in front], "o-", color="C1", label="front, re-timed")
+    if chosen:
+        ax.plot([chosen["ms"]], [chosen["value"]], "*", ms=14, color="C3", label="chosen")
+    if max_ms:
+        ax.axvline(max_ms, color="k", ls="--", lw=1, label=f"--max-ms {max_ms:g}")
+    ax.set_xlabel("ms per frame")
+    ax.set_ylabel(metric)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def side_by_side(path: Path, frame, manual: StereoParams, tuned: StereoParams) -> None:
+    """reference | manual | tuned disparity (one colour scale) as one PNG."""
+    import cv2
+
+    maps = [DisparityPipeline(p).compute(frame.left, frame.right) for p in (manual, tuned)]
+    if frame.reference is not None:
+        maps.insert(0, frame.reference)
+    finite = [m[np.isfinite(m)] for m in maps]
+    top = max((float(f.max()) for f in finite if f.size), default=1.0)
+    tiles = [colourise(m, top) for m in maps]
+    labels = (["reference"] if frame.reference is not None else []) + ["manual", "tuned"]
+    for tile, label in zip(tiles, labels):
+        cv2.putText(tile, label, (8, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 255), 2, cv2.LINE_AA)
+    cv2.imwrite(str(path), np.hstack(tiles))
+
+
+def write_report(outdir: str | Path, summary: Mapping[str, Any], config: Mapping[str, Any],
+                 framesets: Sequence[FrameSet], manual: StereoParams, tuned: StereoParams,
+                 pareto_points: Sequence[tuple[float, float]], images_per_set: int = 2) -> Path:
+    """Write every report file into ``outdir`` (created); returns the directory."""
+    out = Path(outdir)
+    (out / "frames").mkdir(parents=True, exist_ok=True)
+    metric = summary["config"]["metric"]
+    (out / "summary.json").write_text(json.dumps(_clean(summary), indent=1))
+    (out / "config.yaml").write_text(yaml.safe_dump(_clean(config), sort_keys=False))
+    if summary.get("comparison"):
+        (out / "table.md").write_text(table_markdown(summary["comparison"], metric))
+    runs = summary["runs"]
+    plot_convergence(out / "convergence.png", [r["history"] for r in runs], summary["baseline"]["value"], metric,
+                     f"{summary['config']['optimizer']}, {metric} "
+                     f"({'min' if FITNESS[metric].direction < 0 else 'max'}imised)")
+    budget = summary.get("budget") or {}
+    plot_pareto(out / "pareto.png", pareto_points, budget.get("front") or [], budget.get("chosen"), metric,
+                budget.get("max_ms"))
+    for fs in framesets:
+        for frame in fs.frames[:images_per_set]:
+            name = frame.key.replace("/", "_")
+            side_by_side(out / "frames" / f"{fs.name}_{name}.png", frame, manual, tuned)
+    return out

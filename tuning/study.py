@@ -1,0 +1,333 @@
+"""A tuning study: runs of an optimiser, every evaluation cached and stored.
+
+Roles (as in Optuna): the optimiser proposes genomes, the space turns them into
+candidates validated by the daemon's schema, the executor evaluates, the store
+persists. A study is ``runs`` independent runs; run ``i`` draws its randomness
+from ``SeedSequence(seed).spawn(runs)[i]``, so each run's result depends only on
+(seed, i, data), never on the number of workers or on what was cached.
+
+Identical candidates are evaluated once: each is keyed by a hash of its
+parameters, the frames' digest, the fitness and :data:`EVAL_VERSION`; elites and
+re-proposed parameter sets are answered from that cache (memory, then the run
+store), which is also how ``--resume`` replays a killed run to the very same end.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import statistics
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from uav_depth.daemon.disparity import DisparityPipeline
+from uav_depth.daemon.errors import ConfigError, UavDepthError
+from uav_depth.daemon.params import StereoParams, params_from_dict
+
+from .executor import Executor, run_all
+from .frames import FrameSet
+from .objective import FITNESS, OK, Evaluation, Task, failed
+from .optimizers import OPTIMIZERS, make_space
+from .space import describe_space
+from .store import RunStore
+
+#: Bump when the meaning of an evaluation changes: old cached evaluations are then not reused.
+EVAL_VERSION = 1
+
+
+class TuneInterrupted(UavDepthError):
+    """The run was stopped (Ctrl-C / SIGTERM); finished evaluations are in the store."""
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    """Everything that determines a study's result (workers and time budgets do not)."""
+
+    metric: str = "mse"
+    optimizer: str = "ga"
+    population: int = 30
+    generations: int = 100
+    runs: int = 1
+    seed: int = 0
+    keys: tuple[str, ...] | None = None
+
+    def __post_init__(self) -> None:
+        if self.metric not in FITNESS:
+            raise ConfigError("--metric", f"must be one of {', '.join(FITNESS)}", self.metric)
+        if self.optimizer not in OPTIMIZERS:
+            raise ConfigError("--optimizer", f"must be one of {', '.join(OPTIMIZERS)}", self.optimizer)
+        for key, value, lo in (("--population", self.population, 2), ("--generations", self.generations, 1),
+                               ("--runs", self.runs, 1)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < lo:
+                raise ConfigError(key, f"must be an integer of at least {lo}", value)
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ConfigError("--seed", "must be a non-negative integer", self.seed)
+
+    @property
+    def budget(self) -> int:
+        """Proposals per run (the equal-budget unit between optimisers)."""
+        return self.population * self.generations
+
+
+@dataclass
+class RunResult:
+    """One run: its best candidate and the best-so-far fitness after each generation."""
+
+    run: int
+    best_key: str | None = None
+    best_params: dict[str, Any] | None = None
+    best_value: float = math.nan
+    best_utility: float = -math.inf
+    history: list[float] = field(default_factory=list)
+    proposals: int = 0
+    evaluated: int = 0      # distinct candidates this run evaluated for the first time
+    failed: int = 0         # proposals that were failed candidates
+
+
+@dataclass
+class StudyResult:
+    config: StudyConfig
+    runs: list[RunResult]
+    baseline: Evaluation
+    evaluated: int          # evaluations computed in this invocation
+    cached: int             # proposals answered from the cache / store
+    wall_s: float
+
+    @property
+    def best(self) -> RunResult:
+        """The run with the best training fitness (first of equals)."""
+        return max(self.runs, key=lambda r: r.best_utility)
+
+    def best_params(self) -> StereoParams:
+        return params_from_dict(self.best.best_params)
+
+
+def candidate_key(params: Mapping[str, Any], frames_digest: str, metric: str) -> str:
+    blob = json.dumps({"p": params, "f": frames_digest, "m": metric, "v": EVAL_VERSION}, sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:24]
+
+
+class Study:
+    """Runs ``config`` on ``train`` frames through ``executor``, caching in ``store``."""
+
+    def __init__(self, config: StudyConfig, train: FrameSet, executor: Executor, store: RunStore,
+                 base: StereoParams, progress: Callable[[int, float], None] | None = None,
+                 stop: threading.Event | None = None):
+        self.config, self.train, self.executor, self.store, self.base = config, train, executor, store, base
+        self.fitness = FITNESS[config.metric]
+        self.space = make_space(config.optimizer, config.keys)
+        self.digest = train.digest()
+        self.progress = progress or (lambda n, best: None)
+        self.stop = stop or threading.Event()
+        self._memo: dict[str, Evaluation] = {}
+        self.evaluated = 0
+        self.cached = 0
+
+    # -- identity and resume ------------------------------------------------------------------------------------
+
+    def identity(self) -> dict[str, Any]:
+        """What a resumed run must share with the stored one."""
+        return {"metric": self.config.metric, "optimizer": self.config.optimizer,
+                "population": self.config.population, "generations": self.config.generations,
+                "runs": self.config.runs, "seed": self.config.seed, "space": describe_space(self.space),
+                "frames": self.digest, "frame_keys": self.train.keys, "base": self.base.to_dict(),
+                "eval_version": EVAL_VERSION}
+
+    def open(self, resume: bool) -> None:
+        """Record this study in the store, or check it matches the stored one on ``resume``."""
+        ident = json.loads(json.dumps(self.identity(), default=str))
+        stored = self.store.config()
+        if stored is None:
+            self.store.set_config(ident)
+            return
+        if not resume:
+            raise ConfigError("--store", "already holds a tuning run: pass --resume to continue it, "
+                              "or choose another --store", self.store.path)
+        for key in ident:
+            if stored.get(key) != ident[key]:
+                raise ConfigError(f"--resume ({key})", "must match the stored run",
+                                  f"{_short(ident[key])} (stored: {_short(stored.get(key))})")
+
+    # -- evaluation ---------------------------------------------------------------------------------------------
+
+    def _lookup(self, key: str) -> Evaluation | None:
+        ev = self._memo.get(key)
+        if ev is None:
+            ev = self.store.get(key)
+            if ev is not None:
+                self._memo[key] = ev
+        return ev
+
+    def evaluate(self, candidates: Sequence[tuple[str, dict[str, Any], Evaluation | None]]) -> list[Evaluation]:
+        """Evaluations of (key, params, known) candidates, computing each missing key once."""
+        out: list[Evaluation | None] = [None] * len(candidates)
+        todo: dict[str, tuple[dict[str, Any], list[int]]] = {}
+        for i, (key, params, known) in enumerate(candidates):
+            ev = known or self._lookup(key)
+            if ev is not None:
+                if known is not None and key not in self._memo:
+                    self._memo[key] = known
+                    self.store.put(key, params, None, known)
+                out[i] = ev
+                continue
+            todo.setdefault(key, (params, []))[1].append(i)
+        n_cached = sum(1 for o in out if o is not None)
+        self.cached += n_cached
+        if n_cached:
+            self.progress(n_cached, math.nan)
+        keys = list(todo)
+        tasks = [Task(todo[k][0]) for k in keys]
+        for j, ev in self.executor.imap(tasks, self.stop):
+            key = keys[j]
+            params, idx = todo[key]
+            self.store.put(key, params, params_from_dict(params).hash(), ev)
+            self._memo[key] = ev
+            self.evaluated += 1
+            for i in idx:
+                out[i] = ev
+            self.progress(len(idx), ev.value if ev.ok else math.nan)
+        if any(o is None for o in out):
+            raise TuneInterrupted(f"interrupted: {self.store.count()} evaluations are kept in {self.store.path}; "
+                                  "run the same command with --resume to continue")
+        return out  # type: ignore[return-value]
+
+    def candidate(self, genome: Sequence[float]) -> tuple[str, dict[str, Any], Evaluation | None]:
+        """(cache key, parameter dict, a failed Evaluation if the schema rejects it)."""
+        changes = self.space.decode(genome, self.base)
+        try:
+            params = self.base.replace(**changes).to_dict()
+        except ConfigError as exc:
+            rejected = {"changes": changes, "invalid": True}
+            return candidate_key(rejected, self.digest, self.config.metric), rejected, failed(self.fitness, str(exc))
+        return candidate_key(params, self.digest, self.config.metric), params, None
+
+    def baseline(self) -> Evaluation:
+        params = self.base.to_dict()
+        return self.evaluate([(candidate_key(params, self.digest, self.config.metric), params, None)])[0]
+
+    # -- the loop -----------------------------------------------------------------------------------------------
+
+    def run_one(self, run: int, seed_seq: np.random.SeedSequence) -> RunResult:
+        rng = np.random.default_rng(seed_seq)
+        opt = OPTIMIZERS[self.config.optimizer].factory(self.space, self.config.population, rng, self.base)
+        res = RunResult(run)
+        seen: set[str] = set()
+        for gen in range(self.config.generations):
+            genomes = opt.ask()
+            cands = [self.candidate(g) for g in genomes]
+            before = self.evaluated
+            evs = self.evaluate(cands)
+            utilities = [self.fitness.utility(ev.value) if ev.ok else -math.inf for ev in evs]
+            opt.tell(utilities)
+            self.store.put_trials(run, gen, [c[0] for c in cands], utilities)
+            for (key, params, _), ev, u in zip(cands, evs, utilities):
+                res.proposals += 1
+                res.failed += 0 if ev.ok else 1
+                if key not in seen:
+                    seen.add(key)
+                if u > res.best_utility:
+                    res.best_utility, res.best_key, res.best_params, res.best_value = u, key, params, ev.value
+            res.evaluated += self.evaluated - before
+            res.history.append(res.best_value)
+        return res
+
+    def run(self) -> StudyResult:
+        t0 = time.perf_counter()
+        baseline = self.baseline()
+        seeds = np.random.SeedSequence(self.config.seed).spawn(self.config.runs)
+        runs = [self.run_one(i, s) for i, s in enumerate(seeds)]
+        return StudyResult(self.config, runs, baseline, self.evaluated, self.cached, time.perf_counter() - t0)
+
+
+def _short(value: Any) -> str:
+    text = json.dumps(value, default=str)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+# -- after the search: held-out scores, Pareto front, time budget -------------------------------------------------
+
+def full_scores(executor: Executor, params: Sequence[StereoParams], framesets: Sequence[str]) -> dict:
+    """Every metric of each params on each named frame set: {(i, set): Evaluation}."""
+    tasks, index = [], []
+    for i, p in enumerate(params):
+        for name in framesets:
+            tasks.append(Task(p.to_dict(), name, full=True))
+            index.append((i, name))
+    return dict(zip(index, run_all(executor, tasks)))
+
+
+def pareto_front(points: Sequence[tuple[float, float, Any]]) -> list[tuple[float, float, Any]]:
+    """Non-dominated (utility, ms, item) points (larger utility, smaller ms), fastest first."""
+    front: list[tuple[float, float, Any]] = []
+    best = -math.inf
+    for u, ms, item in sorted(points, key=lambda p: (p[1], -p[0])):
+        if u > best:
+            front.append((u, ms, item))
+            best = u
+    return front
+
+
+def time_params(params: StereoParams, frames: FrameSet, repeats: int = 3) -> float:
+    """Median over ``repeats`` of the mean ms per frame, in this process with OpenCV's default threads
+    (how the daemon runs it)."""
+    pipe = DisparityPipeline(params)
+    samples = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for f in frames.frames:
+            pipe.run(f.left, f.right)
+        samples.append((time.perf_counter() - t0) * 1000.0 / max(1, len(frames)))
+    return float(statistics.median(samples))
+
+
+@dataclass(frozen=True)
+class BudgetChoice:
+    params: StereoParams | None
+    value: float
+    ms: float
+    front: list[dict[str, Any]]
+    reason: str | None = None
+
+
+def choose_under_budget(store: RunStore, fitness_name: str, frames: FrameSet, max_ms: float,
+                        max_points: int = 12) -> BudgetChoice:
+    """The best stored candidate whose re-timed frame time is within ``max_ms``.
+
+    The search's own timings come from busy workers and are only a guide: the
+    Pareto front of (fitness, ms) over every stored evaluation is re-timed here,
+    side by side, and the choice is made on those times.
+    """
+    fitness = FITNESS[fitness_name]
+    pts = [(fitness.utility(ev.value), ev.ms, (key, params, ev)) for key, params, ev in store.evaluations()
+           if ev.status == OK and math.isfinite(ev.ms) and not params.get("invalid")]
+    front = pareto_front(pts)
+    if len(front) > max_points:  # keep the extremes and an even spread between
+        idx = np.unique(np.linspace(0, len(front) - 1, max_points).round().astype(int))
+        front = [front[i] for i in idx]
+    timed = []
+    for u, ms, (key, params, ev) in front:
+        p = params_from_dict(params)
+        timed.append({"key": key, "value": ev.value, "search_ms": ms, "ms": time_params(p, frames), "params": params})
+    fits = [t for t in timed if t["ms"] <= max_ms]
+    if not fits:
+        fastest = min((t["ms"] for t in timed), default=math.nan)
+        return BudgetChoice(None, math.nan, math.nan, timed,
+                            f"no evaluated candidate runs within {max_ms:g} ms per frame (fastest {fastest:.0f} ms)")
+    best = max(fits, key=lambda t: fitness.utility(t["value"]))
+    return BudgetChoice(params_from_dict(best["params"]), best["value"], best["ms"], timed)
+
+
+def result_summary(result: StudyResult) -> dict[str, Any]:
+    cfg = asdict(result.config)
+    return {"config": cfg, "wall_s": result.wall_s, "evaluated": result.evaluated, "cached": result.cached,
+            "baseline": {"value": result.baseline.value, "status": result.baseline.status,
+                         "reason": result.baseline.reason},
+            "runs": [{"run": r.run, "best_value": r.best_value, "best_key": r.best_key,
+                      "best_params": r.best_params, "history": r.history, "proposals": r.proposals,
+                      "evaluated": r.evaluated, "failed": r.failed} for r in result.runs],
+            "best_run": result.best.run}
