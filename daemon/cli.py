@@ -33,6 +33,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("uav_depth.daemon.commands.bench",
               "time the daemon pipeline against OpenCV's sample pipeline on synthetic scenes (prints figures)"),
     "run": ("uav_depth.daemon.commands.run", "the on-board daemon: stereo -> branch distance -> MAVLink DISTANCE_SENSOR"),
+    "sitl": ("uav_depth.daemon.commands.sitl",
+             "fly the daemon against a simulated autopilot: synthetic stereo rendered from its pose"),
     "sources": ("uav_depth.daemon.commands.sources", "list the frame sources run accepts (and probe for hardware)"),
     "reference": ("uav_depth.tuning.commands.reference",
                   "give logged frames a reference disparity (import one, or run an ONNX stereo network)"),

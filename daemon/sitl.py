@@ -21,16 +21,23 @@ the camera centre as position, both in world coordinates.
 
 from __future__ import annotations
 
+import collections
+import csv
+import logging
 import math
+import statistics
 import threading
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from .errors import ConfigError, SourceError
 from .scene import Pose
+
+log = logging.getLogger("uav_depth.sitl")
 
 #: Camera axes (columns: x right, y down, z forward) in body FRD coordinates, camera level.
 R_BODY_CAMERA = np.array([[0.0, 0.0, 1.0],
@@ -166,6 +173,13 @@ class SitlConfig:
         if not 0.05 <= self.pose_timeout_s <= 60.0:
             raise ConfigError("--pose-timeout-s", "must be between 0.05 and 60", self.pose_timeout_s)
 
+    def describe(self, distance_m: float) -> str:
+        tree = ("tree %g m in front of the start pose" % distance_m if self.tree_ned_m is None
+                else "tree at NED %s m" % list(self.tree_ned_m))
+        yaw = "" if self.approach_yaw_deg is None else f", approached at heading {self.approach_yaw_deg:g} deg"
+        return (f"sitl: {tree}{yaw}, camera at {list(self.camera_offset_m)} m pitched {self.camera_pitch_deg:g} deg, "
+                f"pose at {self.pose_rate_hz:g} Hz (stale after {self.pose_timeout_s:g} s)")
+
     @property
     def mount(self) -> CameraMount:
         return CameraMount(tuple(float(v) for v in self.camera_offset_m), self.camera_pitch_deg)
@@ -257,3 +271,109 @@ class PoseTracker:
         if age > self.config.pose_timeout_s:
             raise SourceError(f"sitl: the autopilot's pose is {age:.1f} s old (limit {self.config.pose_timeout_s:g} s)")
         return anchor.pose(state, self.config.mount)
+
+
+class PoseRecorder:
+    """The tracker as a pose provider that remembers which vehicle state each rendered pose came from."""
+
+    def __init__(self, tracker: PoseTracker, keep: int = 512):
+        self.tracker = tracker
+        self._log: collections.deque[tuple[float, VehicleState]] = collections.deque(maxlen=keep)
+        self._lock = threading.Lock()
+
+    def __call__(self, t_s: float = 0.0) -> Pose:
+        t = self.tracker.clock()
+        pose = self.tracker(t_s)
+        state = self.tracker.state()
+        if state is not None:
+            with self._lock:
+                self._log.append((t, state))
+        return pose
+
+    def state_at(self, t: float, within_s: float = 0.1) -> VehicleState | None:
+        """The state rendered closest to monotonic time ``t`` (None if none within ``within_s``)."""
+        with self._lock:
+            entries = list(self._log)
+        if not entries:
+            return None
+        t_best, state = min(entries, key=lambda e: abs(e[0] - t))
+        return state if abs(t_best - t) <= within_s else None
+
+
+CSV_COLUMNS = ("time_s", "frame", "north_m", "east_m", "down_m", "roll_deg", "pitch_deg", "yaw_deg",
+               "truth_m", "measured_m", "sigma_m", "quality", "error_pct", "latency_ms", "reason")
+
+
+class TruthLog:
+    """Every processed frame of a running service as one CSV row: pose, truth, measurement.
+
+    Polls ``service.last_estimate`` on a thread of its own (never in the frame loop).
+    ``error_pct`` = 100 (measured - truth) / truth. Rows are flushed as written, so
+    a killed run keeps what it logged.
+    """
+
+    def __init__(self, path: str | Path, service: Any, recorder: PoseRecorder | None = None,
+                 tree_ned: np.ndarray | None = None, poll_s: float = 0.01):
+        self.path = Path(path)
+        self.service = service
+        self.recorder = recorder
+        self.tree_ned = tree_ned
+        self.poll_s = poll_s
+        self.errors_pct: list[float] = []
+        self.rows = 0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._file: Any = None
+
+    def start(self) -> "TruthLog":
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = self.path.open("w", newline="", buffering=1)
+        self._writer = csv.writer(self._file)
+        self._writer.writerow(CSV_COLUMNS)
+        self._thread = threading.Thread(target=self._loop, name="sitl-truth", daemon=True)
+        self._thread.start()
+        where = "" if self.tree_ned is None else " (tree at NED %s m)" % [round(float(v), 3) for v in self.tree_ned]
+        log.info("logging ground truth beside each measurement to %s%s", self.path, where)
+        return self
+
+    def _loop(self) -> None:
+        last = None
+        while not self._stop.wait(self.poll_s):
+            est = self.service.last_estimate
+            if est is None or est.frame_index == last:
+                continue
+            last = est.frame_index
+            self._row(est)
+
+    def _row(self, est: Any) -> None:
+        m = est.measurement
+        state = self.recorder.state_at(est.t_capture) if self.recorder is not None else None
+        err = None
+        if m.valid and est.truth_m:
+            err = 100.0 * (m.distance_m - est.truth_m) / est.truth_m
+            self.errors_pct.append(err)
+        f = lambda v, nd=4: "" if v is None else f"{v:.{nd}f}"  # noqa: E731
+        pose = ([f(v) for v in state.position_ned] + [f(math.degrees(a), 2) for a in (state.roll, state.pitch,
+                                                                                       state.yaw)]
+                if state is not None else [""] * 6)
+        self._writer.writerow([f(est.t_capture - self.service.t0, 3), est.frame_index, *pose, f(est.truth_m),
+                               f(m.distance_m), f(m.sigma_m), m.quality, f(err, 2),
+                               f(est.timings_ms.get("latency"), 1), m.reason or ""])
+        self.rows += 1
+
+    def close(self, timeout_s: float = 1.0) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+    def summary(self) -> str:
+        errs = [abs(e) for e in self.errors_pct]
+        if not errs:
+            return f"{self.rows} frames, none measured"
+        errs.sort()
+        p95 = errs[min(len(errs) - 1, int(math.ceil(0.95 * len(errs))) - 1)]
+        return (f"{self.rows} frames, {len(errs)} measured; |error| median {statistics.median(errs):.2f} %, "
+                f"95th percentile {p95:.2f} %, max {errs[-1]:.2f} %")
