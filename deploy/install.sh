@@ -170,13 +170,13 @@ if [ -e "$params" ]; then
     say "keeping existing $params"
 elif [ $dry -eq 1 ]; then
     say "+ $root$venv/bin/uav-depth params default > $params"
-elif "$root$venv/bin/python" -m uav_depth.daemon.cli params default > "$params.tmp" 2>/dev/null; then
+elif why=$("$root$venv/bin/python" -m uav_depth.daemon.cli params default 2>&1 >"$params.tmp"); then
     # The defaults come from the installed schema itself: no second copy of them here.
     chmod 0640 "$params.tmp" && mv "$params.tmp" "$params"
     own uav-depth uav-depth "$params"
 else
     rm -f "$params.tmp"
-    say "not writing $params: the installed package cannot run yet (--no-deps?); the daemon uses its built-in defaults"
+    say "not writing $params: the installed package does not run (${why##*$'\n'}); the daemon uses its built-in defaults"
 fi
 
 # 5. Devices: OAK-D over USB for group video.
@@ -199,5 +199,15 @@ if [ $enable -eq 1 ]; then
 fi
 # An upgrade takes effect at once if the service was running; a first install is not started.
 if [ $booted -eq 1 ]; then act systemctl try-restart uav-depth.service; fi
+
+# 7. Check the config with the installed package: a bad one would only show in the journal later.
+cfg_check=(-m uav_depth.daemon.cli run --check --config "$root/etc/uav-depth/config.yaml")
+if [ $dry -eq 1 ]; then
+    say "+ $root$venv/bin/python ${cfg_check[*]}"
+elif out=$("$root$venv/bin/python" "${cfg_check[@]}" 2>&1); then
+    say "$out"
+else
+    say "config check failed, the service will not start until this is fixed: ${out##*$'\n'}"
+fi
 
 say "done. Edit ${root}/etc/uav-depth/config.yaml, then: systemctl start uav-depth; journalctl -u uav-depth -f"
