@@ -120,6 +120,11 @@ class RunStore:
             self.db.executemany("INSERT OR REPLACE INTO trials VALUES (?, ?, ?, ?, ?)",
                                 [(run, generation, i, k, _num(u)) for i, (k, u) in enumerate(zip(keys, utilities))])
 
+    def trials(self) -> list[tuple[int, int, int, str, float | None]]:
+        """Every (run, generation, index, key, utility) proposal, in order (None utility: failed)."""
+        return [tuple(r) for r in self.db.execute("SELECT run, generation, idx, key, utility FROM trials "
+                                                   "ORDER BY run, generation, idx")]
+
     def trial_count(self) -> int:
         return int(self.db.execute("SELECT COUNT(*) FROM trials").fetchone()[0])
 

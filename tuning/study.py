@@ -104,6 +104,10 @@ class StudyResult:
         return max(self.runs, key=lambda r: r.best_utility)
 
     def best_params(self) -> StereoParams:
+        """The best run's parameters; raises when every candidate of every run failed."""
+        if self.best.best_params is None:
+            raise UavDepthError(f"every candidate failed ({sum(r.proposals for r in self.runs)} proposals): "
+                                "no parameters to write; see the failures' reasons in the run store")
         return params_from_dict(self.best.best_params)
 
 
@@ -216,7 +220,6 @@ class Study:
         rng = np.random.default_rng(seed_seq)
         opt = OPTIMIZERS[self.config.optimizer].factory(self.space, self.config.population, rng, self.base)
         res = RunResult(run)
-        seen: set[str] = set()
         for gen in range(self.config.generations):
             genomes = opt.ask()
             cands = [self.candidate(g) for g in genomes]
@@ -228,8 +231,6 @@ class Study:
             for (key, params, _), ev, u in zip(cands, evs, utilities):
                 res.proposals += 1
                 res.failed += 0 if ev.ok else 1
-                if key not in seen:
-                    seen.add(key)
                 if u > res.best_utility:
                     res.best_utility, res.best_key, res.best_params, res.best_value = u, key, params, ev.value
             res.evaluated += self.evaluated - before

@@ -1,0 +1,143 @@
+"""Search spaces: the paper's decoding, ranges that come from the schema, candidates the schema accepts."""
+
+import numpy as np
+import pytest
+
+from uav_depth.daemon.errors import ConfigError
+from uav_depth.daemon.params import (DEFAULT_PARAMS, OPENCV_COST_MAX, OPENCV_PRE_FILTER_CAP_FLOOR, SPEC_BY_KEY,
+                                     SPECS, params_from_dict)
+from uav_depth.tuning.space import (DEFAULT_KEYS, PAPER_LAYOUT, PaperSpace, SchemaSpace, build, decode_number,
+                                    dim_for, encode_number, parse_keys)
+
+
+@pytest.mark.parametrize("genes, value", [
+    ([1, 1, 1, 1, 1], 1),                       # smallest alpha
+    ([10, 10, 10, 10, 10], 100000),             # largest alpha: 9*10000 + 9*1000 + 9*100 + 9*10 + 10
+    ([1, 1, 7, 1, 1], 601),                     # (7-1)*100 + 1
+    ([2, 3, 4, 5, 6], 12346),                   # 10000 + 2000 + 300 + 40 + 6
+    ([1, 10], 10), ([10, 10], 100), ([10, 1], 91), ([1, 1, 1], 1), ([10, 10, 10], 1000),
+], ids=lambda x: str(x))
+def test_decode_number_is_the_papers_formula(genes, value):
+    assert decode_number(genes) == value
+
+
+@pytest.mark.parametrize("k", [2, 3, 5])
+def test_decode_number_is_a_bijection_onto_1_to_10_to_the_k(k):
+    if k == 5:
+        values = list(range(1, 100001, 997)) + [100000]
+    else:
+        values = range(1, 10 ** k + 1)
+    for v in values:
+        assert decode_number(encode_number(v, k)) == v
+
+
+def test_paper_space_layout_is_29_genes_mapped_onto_the_schema_symbols():
+    space = PaperSpace()
+    assert space.size == 29
+    assert [sym for sym, _, _ in PAPER_LAYOUT] == [s.paper for s in SPECS if s.paper]
+    assert [g["genes"] for g in space.describe()] == ["x1..x5", "x6..x10", "x11..x12", "x13..x14", "x15..x16",
+                                                      "x17..x19", "x20..x22", "x23..x27", "x28..x29"]
+
+
+def test_paper_extremes_give_the_papers_ranges_from_the_schema():
+    space = PaperSpace()
+    lo, hi = space.decode([1] * 29), space.decode([10] * 29)
+    for spec in SPECS:
+        if not spec.paper or ".." not in spec.paper_range or "<" in spec.paper_range:
+            continue
+        a, b = (float(x) for x in spec.paper_range.split(".."))
+        assert (lo[spec.key], hi[spec.key]) == (a, b), spec.key
+    # beta = alpha + number(x6..x10): alpha < beta <= 200000
+    assert lo["sgbm.p2"] == 2 and hi["sgbm.p2"] == 200000
+
+
+def test_paper_sigma_uses_two_genes_in_hundredths():
+    g = [1] * 29
+    g[27], g[28] = 6, 1
+    assert PaperSpace().decode(g)["wls.sigma_color"] == 0.5
+    g[27], g[28] = 1, 4
+    assert PaperSpace().decode(g)["wls.sigma_color"] == 0.03
+
+
+def test_paper_random_genomes_stay_in_range_and_beta_above_alpha():
+    space, rng = PaperSpace(), np.random.default_rng(0)
+    for _ in range(300):
+        genome = space.sample(rng)
+        assert genome.min() >= 1 and genome.max() <= 10
+        d = space.decode(genome)
+        assert d["sgbm.p1"] < d["sgbm.p2"] <= 200000
+        assert 0.0 <= d["wls.sigma_color"] <= 0.99
+
+
+def test_paper_sigma_zero_is_rejected_by_the_schema_not_repaired():
+    genome = PaperSpace().encode(DEFAULT_PARAMS.replace(**{"wls.sigma_color": 0.5}))
+    genome[27:29] = 1
+    with pytest.raises(ConfigError, match="wls.sigma_color must be greater than 0, but got 0.0"):
+        build(PaperSpace(), genome, DEFAULT_PARAMS)
+
+
+def test_paper_encode_round_trip_and_untuned_keys_keep_the_base():
+    base = DEFAULT_PARAMS.replace(**{"wls.sigma_color": 0.25, "sgbm.block_size": 7, "sgbm.num_disparities": 64})
+    space = PaperSpace()
+    assert build(space, space.encode(base), base) == base
+    other = build(space, space.sample(np.random.default_rng(1)), base)
+    for spec in SPECS:
+        if not spec.paper:
+            assert other.get(spec.key) == base.get(spec.key), spec.key
+
+
+def test_schema_space_bounds_come_from_the_schema_and_opencv_limits():
+    for key in DEFAULT_KEYS:
+        dim, spec = dim_for(key), SPEC_BY_KEY[key]
+        if dim.kind in ("int", "float", "odd"):
+            assert spec.lo <= dim.lo and dim.hi <= spec.hi, key
+    assert dim_for("sgbm.p2").hi == min(SPEC_BY_KEY["sgbm.p2"].hi, OPENCV_COST_MAX)
+    assert dim_for("sgbm.p1").hi < OPENCV_COST_MAX
+    assert dim_for("sgbm.pre_filter_cap").lo == OPENCV_PRE_FILTER_CAP_FLOOR
+
+
+def test_schema_space_candidates_always_validate_and_keep_the_declared_rules():
+    keys = parse_keys("default,sgbm.mode,sgbm.num_disparities,wls.enabled")
+    space, rng = SchemaSpace(keys), np.random.default_rng(3)
+    for i in range(400):
+        genome = space.sample(rng) if i > 3 else np.full(space.size, [0.0, 1.0, 0.5, 0.999999][i])
+        p = build(space, genome, DEFAULT_PARAMS)       # raises if the schema rejects it
+        assert p.sgbm.p1 < p.sgbm.p2 <= OPENCV_COST_MAX
+        assert p.sgbm.block_size % 2 == 1 and p.sgbm.num_disparities % 16 == 0
+        assert not p.sgbm.overflows
+
+
+def test_schema_space_encodes_the_baseline_exactly():
+    space = SchemaSpace(parse_keys("default,sgbm.mode"))
+    assert build(space, space.encode(DEFAULT_PARAMS), DEFAULT_PARAMS) == DEFAULT_PARAMS
+
+
+def test_schema_space_log_scale_spends_equal_effort_per_decade():
+    dim = dim_for("sgbm.p1")
+    values = [dim.decode(u) for u in np.linspace(0, 1, 1001)]
+    below_100 = np.mean(np.array(values) < 100)
+    assert 0.35 < below_100 < 0.55   # log10(100) / log10(32766) = 0.44; linear would give 0.003
+
+
+def test_schema_space_p2_alone_stays_above_the_bases_p1():
+    space = SchemaSpace(("sgbm.p2",))
+    base = DEFAULT_PARAMS.replace(**{"sgbm.p1": 5000, "sgbm.p2": 6000})
+    assert all(build(space, [u], base).sgbm.p2 > 5000 for u in (0.0, 0.3, 1.0))
+
+
+def test_every_schema_key_of_a_searchable_kind_can_be_tuned():
+    # new keys in SPECS (e.g. compute.*) are picked up without edits here
+    for spec in SPECS:
+        if spec.kind in (int, float, bool) or spec.choices:
+            space = SchemaSpace((spec.key,))
+            p = build(space, space.sample(np.random.default_rng(0)), DEFAULT_PARAMS)
+            assert params_from_dict(p.to_dict()) == p
+
+
+@pytest.mark.parametrize("text, match", [
+    ("sgbm.nope", "--keys must name parameter-file keys"),
+    ("sgbm.p1,wls.lamda", "'wls.lamda'"),
+], ids=["unknown", "typo"])
+def test_bad_keys_are_clear(text, match):
+    with pytest.raises(ConfigError, match=match):
+        parse_keys(text)

@@ -1,0 +1,156 @@
+"""Studies: deterministic whatever the workers, cached, failures recorded, fitness variants."""
+
+import math
+
+import numpy as np
+import pytest
+
+from uav_depth.daemon.errors import ConfigError
+from uav_depth.daemon.params import DEFAULT_PARAMS
+from uav_depth.tuning.executor import ProcessExecutor, SerialExecutor, make_executor, run_all
+from uav_depth.tuning.frames import FrameData, FrameSet
+from uav_depth.tuning.objective import FITNESS, Task, evaluate
+from uav_depth.tuning.space import PaperSpace
+from uav_depth.tuning.store import RunStore
+from uav_depth.tuning.study import Study, StudyConfig, candidate_key, pareto_front
+
+from .conftest import TINY_BASE
+
+
+def _run(frames, workers, tmp_path=None, **cfg):
+    config = StudyConfig(**{"population": 6, "generations": 3, "seed": 11, **cfg})
+    store = RunStore(tmp_path / "s.sqlite" if tmp_path else ":memory:")
+    with (SerialExecutor({"train": frames}, config.metric) if workers == 1
+          else ProcessExecutor({"train": frames}, config.metric, workers)) as ex:
+        study = Study(config, frames, ex, store, TINY_BASE)
+        return study.run(), store
+
+
+def _signature(result):
+    return [(r.best_key, repr(r.best_value), repr(r.history)) for r in result.runs]
+
+
+@pytest.mark.parametrize("optimizer", ["ga-paper", "ga"])
+def test_same_seed_same_result_with_one_and_two_workers(tiny_frames, optimizer):
+    one, store1 = _run(tiny_frames, 1, optimizer=optimizer, runs=2)
+    two, store2 = _run(tiny_frames, 2, optimizer=optimizer, runs=2)
+    assert _signature(one) == _signature(two)
+    trials = store1.trials()
+    assert trials == store2.trials()          # every proposal and its fitness, bit for bit
+    assert len(trials) == 2 * 6 * 3
+    by_run = [[t[3] for t in trials if t[0] == r] for r in (0, 1)]
+    assert by_run[0] != by_run[1]             # the runs' seeds differ
+
+
+def test_different_seeds_differ(tiny_frames):
+    a, _ = _run(tiny_frames, 1, optimizer="ga", seed=1)
+    b, _ = _run(tiny_frames, 1, optimizer="ga", seed=2)
+    assert _signature(a) != _signature(b)
+
+
+def test_identical_candidates_are_evaluated_once(tiny_frames):
+    result, store = _run(tiny_frames, 1, optimizer="ga-paper", population=8, generations=4)
+    proposals = sum(r.proposals for r in result.runs) + 1   # + the baseline
+    assert result.evaluated + result.cached == proposals
+    assert result.cached >= 5 * 3          # at least the five elites of every later generation
+    rows = list(store.evaluations())
+    assert len({k for k, _, _ in rows}) == len(rows)
+    assert len([r for r in rows if not r[1].get("invalid")]) == result.evaluated
+
+
+def test_best_so_far_never_worsens_and_beats_or_equals_the_base(tiny_frames):
+    result, _ = _run(tiny_frames, 1, optimizer="ga", generations=4)
+    h = result.runs[0].history
+    assert all(b <= a for a, b in zip(h, h[1:]))
+    assert h[-1] <= result.baseline.value    # the improved GA starts from the base (mse: lower is better)
+
+
+def test_failed_candidates_are_recorded_with_reason_and_the_run_finishes(tiny_frames):
+    # the paper's ranges make most random candidates overflow OpenCV's 16-bit costs
+    result, store = _run(tiny_frames, 1, optimizer="ga-paper", population=10, generations=3)
+    rows = list(store.evaluations())
+    failed = [ev for _, _, ev in rows if ev.status == "failed"]
+    assert failed and all(ev.reason for ev in failed)
+    assert all(ev.value == math.inf for ev in failed)      # worst mse
+    assert any("16-bit cost limit" in ev.reason for ev in failed)
+    assert len(result.runs[0].history) == 3 and result.runs[0].failed > 0
+
+
+def test_a_candidate_the_schema_rejects_is_a_failed_trial(tiny_frames):
+    config = StudyConfig(optimizer="ga-paper", population=2, generations=1)
+    with SerialExecutor({"train": tiny_frames}, "mse") as ex:
+        study = Study(config, tiny_frames, ex, RunStore(), DEFAULT_PARAMS)
+        genome = PaperSpace().encode(DEFAULT_PARAMS.replace(**{"wls.sigma_color": 0.5}))
+        genome[27:29] = 1                                   # sigma 0
+        key, params, ev = study.candidate(genome)
+        assert ev.status == "failed" and "wls.sigma_color must be greater than 0" in ev.reason
+        assert study.evaluate([(key, params, ev)])[0] is ev
+        assert study.store.get(key).reason == ev.reason
+
+
+def test_a_candidate_that_raises_is_a_failed_trial(tiny_frames):
+    bad = FrameSet("train", (FrameData("odd/0", tiny_frames.frames[0].left, tiny_frames.frames[0].right[:, :-8],
+                                       tiny_frames.frames[0].reference),))
+    ev = evaluate(TINY_BASE, bad, FITNESS["mse"])
+    assert ev.status == "failed" and "FrameError" in ev.reason and ev.value == math.inf
+
+
+@pytest.mark.parametrize("metric", ["mse", "psnr", "ssim", "bad2", "branch"])
+def test_every_fitness_scores_the_baseline(tiny_frames, metric):
+    ev = evaluate(TINY_BASE, tiny_frames, FITNESS[metric])
+    assert ev.status == "ok" and len(ev.per_frame) == 2 and math.isfinite(ev.value)
+    assert ev.value == pytest.approx(np.mean(ev.per_frame))
+    assert "mse" in ev.metrics and "branch" in ev.metrics
+
+
+def test_branch_fitness_is_the_daemons_ranging_error(tiny_frames):
+    ev = evaluate(TINY_BASE, tiny_frames, FITNESS["branch"])
+    assert 0 <= ev.value < 10          # the baseline ranges tiny synthetic branches within a few %
+    # a matcher that sees nothing near cannot range the branch: the miss costs 100 %
+    blind = TINY_BASE.replace(**{"sgbm.num_disparities": 16, "sgbm.min_disparity": 0})
+    assert evaluate(blind, tiny_frames, FITNESS["branch"]).value > ev.value
+
+
+def test_selfsup_fitness_needs_no_reference(tiny_frames):
+    no_ref = FrameSet("train", tuple(FrameData(f.key, f.left, f.right) for f in tiny_frames.frames))
+    assert FITNESS["selfsup"].needs == ()
+    good = evaluate(TINY_BASE, no_ref, FITNESS["selfsup"])
+    bad = evaluate(TINY_BASE.replace(**{"sgbm.uniqueness_ratio": 95}), no_ref, FITNESS["selfsup"])
+    assert good.status == "ok" and 0 <= good.value <= 1
+    assert "mse" not in good.metrics
+    assert bad.value > good.value
+
+
+def test_cache_key_depends_on_params_frames_and_metric():
+    p = DEFAULT_PARAMS.to_dict()
+    k = candidate_key(p, "f1", "mse")
+    assert k == candidate_key(DEFAULT_PARAMS.to_dict(), "f1", "mse")
+    assert len({k, candidate_key(p, "f2", "mse"), candidate_key(p, "f1", "ssim"),
+                candidate_key(DEFAULT_PARAMS.replace(**{"sgbm.p1": 601}).to_dict(), "f1", "mse")}) == 4
+
+
+def test_process_pool_loads_frames_once_and_keeps_task_order(tiny_frames):
+    tasks = [Task(TINY_BASE.replace(**{"sgbm.p1": p1}).to_dict()) for p1 in (100, 300, 600, 900, 1200)]
+    with make_executor({"train": tiny_frames}, "mse", 2) as ex:
+        pooled = run_all(ex, tasks)
+    with make_executor({"train": tiny_frames}, "mse", 1) as ex:
+        serial = run_all(ex, tasks)
+    assert [e.value for e in pooled] == [e.value for e in serial]
+    assert len({e.value for e in serial}) == 5
+
+
+def test_pareto_front():
+    pts = [(1.0, 10.0, "a"), (2.0, 20.0, "b"), (0.5, 30.0, "c"), (3.0, 40.0, "d"), (2.5, 5.0, "e")]
+    assert [p[2] for p in pareto_front(pts)] == ["e", "d"]
+
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(population=1), "--population must be an integer of at least 2"),
+    (dict(generations=0), "--generations must be an integer of at least 1"),
+    (dict(metric="mae"), "--metric must be one of"),
+    (dict(optimizer="pso"), "--optimizer must be one of"),
+    (dict(seed=-1), "--seed must be a non-negative integer"),
+], ids=["population", "generations", "metric", "optimizer", "seed"])
+def test_bad_study_config_is_clear(kw, match):
+    with pytest.raises(ConfigError, match=match):
+        StudyConfig(**kw)
