@@ -70,13 +70,17 @@ class VariantResult:
     estimates_m: list[float | None] = field(default_factory=list)
 
     def summary(self, frames: Sequence[BenchFrame], naive_median_ms: float | None,
-                max_distance_m: float = 2.0) -> dict[str, Any]:
+                exact_m: Sequence[float | None] = (), max_distance_m: float = 2.0) -> dict[str, Any]:
+        """``exact_m``: the ranging's estimate on exact disparity per frame (see :func:`ranging_floor`)."""
         t = np.asarray(self.total_ms)
         errs = [None if e is None else (e - f.truth_m) / f.truth_m for e, f in zip(self.estimates_m, frames)]
         # Frames placed up to max_distance_m (the truth is a hair beyond where pixel centres miss the ridge).
         near = [f.design_m <= max_distance_m + 1e-9 for f in frames]
         within = [abs(e) for e, n in zip(errs, near) if e is not None and n]
         missing = sum(1 for e, n in zip(errs, near) if e is None and n)
+        # What the disparity pipeline adds: its estimate against the same ranging on exact disparity.
+        vs_exact = [abs(e - x) / x for e, x, n in zip(self.estimates_m, exact_m, near)
+                    if e is not None and x is not None and n]
         med = float(np.median(t))
         return {
             "name": self.variant.name,
@@ -95,6 +99,7 @@ class VariantResult:
             "max_abs_rel_error": max(within) if within else None,
             "median_abs_rel_error": float(np.median(within)) if within else None,
             "frames_without_estimate": missing,
+            "max_abs_rel_vs_exact": max(vs_exact) if vs_exact else None,
             "per_frame": [{"truth_m": f.truth_m, "estimate_m": e, "rel_error": r}
                           for f, e, r in zip(frames, self.estimates_m, errs)],
         }
@@ -211,14 +216,17 @@ def ranging_floor(frames: Sequence[BenchFrame], max_distance_m: float = 2.0) -> 
     """The ranging's own error: the exact disparity (every pixel measured, confidence 1) through the
     daemon's ranging. No pipeline can do better than this on these frames."""
     make_ranger = _ranger_factory()
-    errs = []
+    errs: list[float | None] = []
+    ests: list[float | None] = []
     for f in frames:
         d = np.where(np.isfinite(f.disparity), f.disparity, np.nan).astype(np.float32)
         est = make_ranger(DEFAULT_PARAMS, f)(DisparityResult(d, d, np.ones_like(d)))
+        ests.append(est)
         errs.append(None if est is None else (est - f.truth_m) / f.truth_m)
     within = [abs(e) for e, f in zip(errs, frames) if e is not None and f.design_m <= max_distance_m + 1e-9]
     return {"max_abs_rel_error": max(within) if within else None,
-            "median_abs_rel_error": float(np.median(within)) if within else None, "per_frame_rel_error": errs}
+            "median_abs_rel_error": float(np.median(within)) if within else None, "per_frame_rel_error": errs,
+            "per_frame_estimate_m": ests}
 
 
 def run(frames: Sequence[BenchFrame], variants: Sequence[Variant],
@@ -255,7 +263,9 @@ def run(frames: Sequence[BenchFrame], variants: Sequence[Variant],
             progress(f"round {rnd + 1}/{n_rounds} done")
     naive = results.get("naive")
     naive_med = float(np.median(naive.total_ms)) if naive is not None else None
-    return {"variants": [r.summary(frames, naive_med) for r in results.values()]}
+    floor = ranging_floor(frames)
+    return {"variants": [r.summary(frames, naive_med, floor["per_frame_estimate_m"]) for r in results.values()],
+            "ranging_floor": floor}
 
 
 def bench(flight: StereoParams, frames: int = 12, rounds: int = 20, naive_rounds: int = 2, width: int = 1280,
@@ -276,7 +286,6 @@ def bench(flight: StereoParams, frames: int = 12, rounds: int = 20, naive_rounds
                             note="OpenCV sample: full frame, colour, SGBM+right+WLS"),
                     Variant("flight", flight, rounds, note="the flight parameter file")]
     out = run(fr, variants, progress)
-    out["ranging_floor"] = ranging_floor(fr)
     out["machine"] = machine()
     out["frames"] = {"n": len(fr), "width": width, "height": height, "seed": seed, "colour": True,
                      "truth_m": [f.truth_m for f in fr], "render_s_per_pair": render_s / max(1, len(fr))}
@@ -307,10 +316,12 @@ def format_report(out: dict[str, Any]) -> str:
              f"({m['opencv_threads']} threads), numpy {m['numpy']}",
              f"frames: {fr['n']} synthetic pairs {fr['width']}x{fr['height']} colour, branch "
              f"{min(fr['truth_m']):.2f}..{max(fr['truth_m']):.2f} m (rendered {fr['render_s_per_pair']:.2f} s/pair)",
-             "time: disparity pipeline + branch ranging per frame, ms; error: |estimate - truth| / truth over "
-             "frames up to 2 m", ""]
+             "time: disparity pipeline + branch ranging per frame, ms; err: |estimate - truth| / truth over "
+             "frames up to 2 m;",
+             "vs exact: largest |estimate - estimate on exact disparity| / the latter, the error the pipeline adds "
+             "to the ranging's own", ""]
     head = (f"{'variant':16s} {'runs':>5s} {'median':>8s} {'p99':>8s} {'fps':>7s} {'x naive':>8s} "
-            f"{'max err':>8s} {'med err':>8s} {'miss':>4s}  stages (median ms)")
+            f"{'max err':>8s} {'med err':>8s} {'vs exact':>8s} {'miss':>4s}  stages (median ms)")
     lines.append(head)
     lines.append("-" * len(head))
     def pct(x: float | None) -> str:
@@ -321,7 +332,7 @@ def format_report(out: dict[str, Any]) -> str:
         stages = " ".join(f"{k} {ms:.1f}" for k, ms in v["stages_median_ms"].items())
         lines.append(f"{v['name']:16s} {v['runs']:5d} {v['median_ms']:8.1f} {v['p99_ms']:8.1f} {v['fps']:7.1f} "
                      f"{ratio:>8s} {pct(v['max_abs_rel_error']):>8s} {pct(v['median_abs_rel_error']):>8s} "
-                     f"{v['frames_without_estimate']:4d}  {stages}")
+                     f"{pct(v['max_abs_rel_vs_exact']):>8s} {v['frames_without_estimate']:4d}  {stages}")
     floor = out.get("ranging_floor")
     if floor:
         lines.append(f"{'exact disparity':16s} {'':5s} {'':8s} {'':8s} {'':7s} {'':8s} "

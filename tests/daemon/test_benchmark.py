@@ -49,6 +49,10 @@ def test_interleaved_run_reports_every_variant_on_every_frame(frames):
             if pf["estimate_m"] is not None:
                 assert pf["rel_error"] == pytest.approx((pf["estimate_m"] - f.truth_m) / f.truth_m)
         assert v["max_abs_rel_error"] is None or v["max_abs_rel_error"] >= v["median_abs_rel_error"]
+    exact = out["ranging_floor"]["per_frame_estimate_m"]
+    for v in out["variants"]:
+        gaps = [abs(p["estimate_m"] - x) / x for p, x in zip(v["per_frame"], exact) if p["estimate_m"] and x]
+        assert v["max_abs_rel_vs_exact"] == pytest.approx(max(gaps))
     # the same pipeline with one OpenCV thread estimates the same distances
     assert [p["estimate_m"] for p in by["fast"]["per_frame"]] == [p["estimate_m"]
                                                                   for p in by["fast-1thread"]["per_frame"]]
