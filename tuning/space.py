@@ -208,6 +208,10 @@ SCALES: dict[str, str] = {
 #: (see the README), so a mode tuned in single-threaded workers may not be what flies.
 DEFAULT_KEYS: tuple[str, ...] = tuple(s.key for s in SPECS if s.paper) + ("sgbm.block_size",)
 
+#: Speed levers of the schema that trade accuracy for frame time; added to the default keys
+#: when the search has a frame-time budget (``--max-ms``), so the Pareto front has fast options.
+SPEED_KEYS: tuple[str, ...] = tuple(k for k in ("compute.scale", "compute.grey") if k in SPEC_BY_KEY)
+
 #: Significant digits a decoded float keeps.
 FLOAT_DIGITS = 4
 
@@ -382,16 +386,19 @@ class SchemaSpace:
         return [d.describe() for d in self.dims]
 
 
-def parse_keys(text: str | None) -> tuple[str, ...]:
-    """``--keys``: comma-separated schema keys; "default" or None for DEFAULT_KEYS; "+k" adds to them."""
-    if not text or text == "default":
-        return DEFAULT_KEYS
+def parse_keys(text: str | None, speed: bool = False) -> tuple[str, ...]:
+    """``--keys``: comma-separated schema keys; "default" (or None) stands for DEFAULT_KEYS, "paper"
+    for the paper's nine, "speed" for SPEED_KEYS. ``speed``: None means DEFAULT_KEYS + SPEED_KEYS."""
+    if not text:
+        return DEFAULT_KEYS + SPEED_KEYS if speed else DEFAULT_KEYS
     keys: list[str] = []
     for part in (p.strip() for p in text.split(",") if p.strip()):
         if part == "default":
             keys += DEFAULT_KEYS
         elif part == "paper":
             keys += [s.key for s in SPECS if s.paper]
+        elif part == "speed":
+            keys += SPEED_KEYS
         else:
             keys.append(part)
     for k in keys:

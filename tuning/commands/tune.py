@@ -24,8 +24,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--runs", type=int, default=1, help="independent runs, seeds derived from --seed (paper: 30)")
     p.add_argument("--seed", type=int, default=0, help="base seed; same seed and data, same result (default 0)")
     p.add_argument("--keys", default=None,
-                   help="schema keys the improved space tunes, comma-separated ('paper' = the nine, 'default' "
-                        "= the nine + sgbm.block_size); ignored by ga-paper")
+                   help="schema keys the improved space tunes, comma-separated: 'default' = the paper's nine + "
+                        "sgbm.block_size, 'paper' = the nine, 'speed' = compute.scale and compute.grey (added to "
+                        "the default with --max-ms); ignored by ga-paper")
     p.add_argument("--holdout", default=None,
                    help="frames kept out of tuning and scored at the end: a fraction (0.3), a directory, or "
                         "a comma list of session names / session/frame keys / frame ids")
@@ -78,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.max_ms is not None and not args.max_ms > 0:
         raise ConfigError("--max-ms", "must be greater than 0", args.max_ms)
-    keys = parse_keys(args.keys)
+    keys = parse_keys(args.keys, speed=args.max_ms is not None)
     config = StudyConfig(metric=args.metric, optimizer=args.optimizer, population=args.population,
                          generations=args.generations, runs=args.runs, seed=args.seed, keys=keys)
     fitness = FITNESS[args.metric]
@@ -146,6 +147,10 @@ def run(args: argparse.Namespace) -> int:
           + f"  [{result.evaluated} evaluated, {result.cached} cached, {result.wall_s:.0f} s]")
     if budget and budget["reason"]:
         print(f"uav-depth tune: error: --max-ms: {budget['reason']}", file=sys.stderr)
+    elif fitness.utility(chosen_value) < fitness.utility(result.baseline.value):
+        print(f"uav-depth tune: warning: the tuned parameters score worse than the base on the training frames "
+              f"({args.metric} {chosen_value:.4g} vs {result.baseline.value:.4g}); a larger budget or another "
+              f"--optimizer may help", file=sys.stderr)
     if args.out and not (budget and budget["reason"]):
         provenance = {
             "tool": "uav-depth tune", "version": __version__, "opencv": cv2.__version__,
