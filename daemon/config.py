@@ -55,10 +55,15 @@ class Key:
     choices: tuple[Any, ...] | None = None
     optional: bool = False
     check: Callable[[Any], str | None] | None = None
+    accepts: str | None = None       # what the README says the key accepts, when the kind does not say it
 
     def accepted(self) -> str:
         """Human text of what the key accepts (README table)."""
-        if self.choices:
+        if self.accepts:
+            text = self.accepts
+        elif self.kind == "bool":
+            text = "true / false"
+        elif self.choices:
             text = " / ".join(str(c) for c in self.choices)
         elif self.kind == "roi":
             text = "[x0, y0, x1, y1] px"
@@ -237,7 +242,7 @@ class MavlinkConfig:
             choices=("laser", "ultrasound", "infrared", "radar", "unknown")),
         Key("orientation", "any", "forward", "DISTANCE_SENSOR.orientation: forward, back, left, right, up, down, "
             "a MAV_SENSOR_ROTATION name (ROLL_180) or its number; must match RNGFND1_ORIENT",
-            check=_check_orientation),
+            check=_check_orientation, accepts="name, or 0..40"),
         Key("signing_key_file", "path", None, "MAVLink 2 signing key file (64 hex digits, 32 raw bytes, or a "
             "passphrase hashed with SHA-256 as MAVProxy does); must not be readable by group or others",
             optional=True),

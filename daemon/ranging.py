@@ -133,29 +133,27 @@ class Ranger:
         x0, y0, x1, y1 = self.roi
         disp = result.measured[y0:y1, x0:x1]
         area = disp.size
-        ok = np.isfinite(disp) & (disp >= self.d_floor)
-        conf = None
-        if result.confidence is not None:
-            conf = result.confidence[y0:y1, x0:x1]
-            ok &= conf >= cfg.min_confidence
-        ys, xs = np.nonzero(ok)
-        n_valid = ys.size
+        with np.errstate(invalid="ignore"):     # NaN compares False: unmatched pixels drop out
+            ok = disp >= self.d_floor
+            conf = None
+            if result.confidence is not None:
+                conf = result.confidence[y0:y1, x0:x1]
+                ok &= conf >= cfg.min_confidence
+        vals = disp[ok]
+        n_valid = vals.size
         valid_fraction = n_valid / area
         if n_valid < cfg.min_valid_px:
             return Measurement(None, n_px=n_valid, valid_fraction=valid_fraction,
                                reason=f"{n_valid} confident measured pixels in the ROI, fewer than "
                                       f"min_valid_px {cfg.min_valid_px}")
-        vals = disp[ys, xs].astype(np.float64)
-        weights = conf[ys, xs].astype(np.float64) if conf is not None else np.ones_like(vals)
         k = cfg.min_valid_px
-        front = float(np.partition(vals, vals.size - k)[vals.size - k])    # the k-th largest disparity
+        front = float(np.partition(vals, n_valid - k)[n_valid - k])    # the k-th largest disparity
         margin = CLUSTER_MARGIN_PX * self.px
         lower = self.fb / (self.fb / front + cfg.cluster_depth_m) - margin
-        member = (vals >= lower) & (vals <= front + margin)
-        n_obj = int(member.sum())
-        if n_obj < k:   # cannot happen for k <= members, kept as a guard for degenerate margins
-            return Measurement(None, n_px=n_obj, valid_fraction=valid_fraction, reason="no significant object")
-        v, w = vals[member], weights[member]
+        upper = front + margin
+        member = (vals >= lower) & (vals <= upper)
+        v = vals[member].astype(np.float64)
+        w = conf[ok][member].astype(np.float64) if conf is not None else np.ones_like(v)
         if not w.sum() > 0:
             w = np.ones_like(v)
         d = _weighted_median(v, w)
@@ -164,8 +162,11 @@ class Ranger:
         sigma_z = z * z / self.fb * sigma_d
         mean_conf = float(w.mean()) if conf is not None else 1.0
         quality = int(min(100, max(2, round(100.0 * valid_fraction * mean_conf))))
-        oy, ox = ys[member], xs[member]
-        bbox = (int(ox.min()) + x0, int(oy.min()) + y0, int(ox.max()) + x0 + 1, int(oy.max()) + y0 + 1)
+        with np.errstate(invalid="ignore"):
+            obj = ok & (disp >= lower) & (disp <= upper)
+        rows, cols = np.flatnonzero(obj.any(axis=1)), np.flatnonzero(obj.any(axis=0))
+        bbox = (int(cols[0]) + x0, int(rows[0]) + y0, int(cols[-1]) + x0 + 1, int(rows[-1]) + y0 + 1)
+        n_obj = int(v.size)
         return Measurement(distance_m=z, sigma_m=sigma_z, quality=quality, bbox=bbox, disparity_px=d,
                            sigma_px=sigma_d, n_px=n_obj, valid_fraction=valid_fraction)
 

@@ -49,7 +49,7 @@ class Config:
             optional=True),
         Key("scene", "any", None, "scene keys (uav_depth.daemon.scene.SceneConfig: width, height, focal_px, "
             "baseline_m, branch_distance_m, seed, ...); default the 1280x720 ZED-Mini-like scene",
-            optional=True),
+            optional=True, accepts="mapping"),
     )
 
     scene: SceneConfig = SceneConfig()

@@ -40,9 +40,10 @@ def _check_device(value: Any) -> str | None:
 class Config:
     KIND = "uvc"
     KEYS = (
-        Key("device", "any", 0, "V4L2 index or path of the (side-by-side) camera", check=_check_device),
+        Key("device", "any", 0, "V4L2 index or path of the (side-by-side) camera", check=_check_device,
+            accepts="index or /dev path"),
         Key("right_device", "any", None, "second camera for the right eye; null: side-by-side in one frame",
-            optional=True, check=_check_device),
+            optional=True, check=_check_device, accepts="index or /dev path"),
         Key("width", "int", 1280, "width of one eye, px (a side-by-side frame is twice as wide)", 16, 8192),
         Key("height", "int", 720, "height, px", 16, 8192),
         Key("fps", "float", 30.0, "requested frame rate", 1.0, 240.0),
