@@ -80,11 +80,15 @@ class FileWatcher:
     """Calls ``on_change(path)`` when ``path`` is created, replaced, modified or removed.
 
     ``poll_s``: the polling period (and the longest wait for a missed event);
-    ``use_inotify``: False forces pure polling.
+    ``use_inotify``: False forces pure polling; ``since``: the :func:`file_signature`
+    the caller last read (default: the file as it is when the watch starts), so a
+    change between the caller's read and the start of the watch is not missed.
     """
 
+    _UNSET = object()
+
     def __init__(self, path: str | os.PathLike[str], on_change: Callable[[Path], None], poll_s: float = 1.0,
-                 use_inotify: bool = True):
+                 use_inotify: bool = True, since: object = _UNSET):
         self.path = Path(path)
         self.on_change = on_change
         self.poll_s = poll_s
@@ -92,6 +96,8 @@ class FileWatcher:
         self.mode = "poll"
         self._thread: threading.Thread | None = None
         self._stop: threading.Event | None = None
+        self._watching = threading.Event()
+        self._since = since
 
     def run(self, stop: threading.Event) -> None:
         """Watch until ``stop`` is set (blocking; :meth:`start` runs it on a thread)."""
@@ -102,8 +108,9 @@ class FileWatcher:
                 self.mode = "inotify"
             except (OSError, AttributeError) as exc:   # no inotify (not Linux, limits reached): poll
                 log.info("watching %s by polling every %.2g s (%s)", self.path, self.poll_s, exc)
-        seen = file_signature(self.path)
+        seen = file_signature(self.path) if self._since is FileWatcher._UNSET else self._since
         next_poll = time.monotonic() + self.poll_s
+        self._watching.set()
         try:
             while not stop.is_set():
                 # short slices, so a set stop event ends the watch within a quarter second
@@ -128,9 +135,11 @@ class FileWatcher:
                 notify.close()
 
     def start(self, stop: threading.Event) -> "FileWatcher":
+        """Watch on a thread; returns once the file's current state is recorded (later changes are seen)."""
         self._stop = stop
         self._thread = threading.Thread(target=self.run, args=(stop,), name="params-watch", daemon=True)
         self._thread.start()
+        self._watching.wait(2.0)
         return self
 
     def join(self, timeout_s: float) -> bool:

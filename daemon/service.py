@@ -42,7 +42,7 @@ from .notify import Notifier
 from .params import DEFAULT_PARAMS, StereoParams, load_params
 from .ranging import Estimate, OutlierGate, Ranger, RangeLimits, resolve_roi
 from .rectify import Rectifier
-from .reload import FileWatcher
+from .reload import FileWatcher, file_signature
 from .sources import EndOfStream, Frame, FrameSource, create_source
 
 log = logging.getLogger("uav_depth.service")
@@ -195,6 +195,7 @@ class Service:
         self._reload_lock = threading.Lock()
         self._reload_now = threading.Event()
         self._watcher: FileWatcher | None = None
+        self._params_signature: tuple[int, int, int] | None = None
         self._frames_in = 0
 
     # -- control from signal handlers (they only set events) -------------------------------------
@@ -212,6 +213,7 @@ class Service:
         path = self.config.params_file
         if path is None:
             return DEFAULT_PARAMS, "built-in manual defaults"
+        self._params_signature = file_signature(Path(path))   # what the watcher compares against
         if not Path(path).exists():
             log.warning("parameter file %s does not exist: using the built-in manual defaults until it appears",
                         path)
@@ -330,7 +332,8 @@ class Service:
             self._threads[name] = t
             t.start()
         if cfg.params_file is not None:
-            self._watcher = FileWatcher(cfg.params_file, self.reload_params, cfg.service.params_poll_s)
+            self._watcher = FileWatcher(cfg.params_file, self.reload_params, cfg.service.params_poll_s,
+                                        since=self._params_signature)
             self._watcher.start(self._stopping)
             log.info("watching %s for new parameters (%s)", cfg.params_file, "inotify + poll")
 

@@ -87,3 +87,20 @@ def test_missing_directory_falls_back_to_polling(tmp_path):
     finally:
         stop.set()
         watcher.join(1.0)
+
+
+def test_a_change_before_the_watch_started_is_not_missed(tmp_path):
+    from uav_depth.daemon.reload import file_signature
+
+    path = tmp_path / "p.yaml"
+    save_params(DEFAULT_PARAMS, path)
+    read_at = file_signature(path)                    # the daemon read the file ...
+    save_params(DEFAULT_PARAMS.replace(**{"sgbm.p1": 650}), path)   # ... the tuner replaced it ...
+    seen = []
+    stop = threading.Event()
+    watcher = FileWatcher(path, seen.append, poll_s=0.05, since=read_at).start(stop)   # ... then the watch began
+    try:
+        assert wait_until(lambda: seen == [path])
+    finally:
+        stop.set()
+        watcher.join(1.0)
