@@ -10,6 +10,14 @@ overwrites the matcher's disp12MaxDiff (to 1000000), uniquenessRatio (0) and
 speckleWindowSize (0). Unless they are set again, three of the paper's nine
 parameters do nothing. We set them again, then build the right matcher from the
 restored left matcher so both sides use the same parameters.
+
+Speed levers (``compute.*``): match only ``compute.roi`` plus the disparity search
+margin, at ``compute.scale`` of the input resolution, grey if ``compute.grey``,
+with WLS at the input or the matched resolution (``compute.wls_at``). Whatever
+they say, every output map is (H, W) at the input's resolution with disparities
+in input pixels; outside the region disparities are NaN and confidence is 0. With
+the defaults the pipeline computes exactly OpenCV's sample (full frame, full
+resolution, colour as given).
 """
 
 from __future__ import annotations
