@@ -292,8 +292,8 @@ class ServiceConfig:
             0.01, 60.0),
         Key("reconnect_max_s", "float", 10.0, "longest camera reconnect delay", 0.01, 600.0),
         Key("status_interval_s", "float", 5.0, "period of the status log line and sd_notify STATUS", 0.1, 3600.0),
-        Key("stall_timeout_s", "float", 10.0, "a frame in the stereo stage for longer than this is a stall: "
-            "WATCHDOG=1 stops so systemd can restart", 0.5, 3600.0),
+        Key("stall_timeout_s", "float", 10.0, "one frame in the stereo stage, or one read of the source, for "
+            "longer than this is a stall: WATCHDOG=1 stops so systemd can restart", 0.5, 3600.0),
         Key("params_poll_s", "float", 1.0, "parameter file poll period (inotify wakes sooner when available)",
             0.05, 60.0),
     )

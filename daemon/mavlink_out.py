@@ -353,12 +353,16 @@ class MavlinkLink:
             try:
                 msgs = self._read(self._conn, 0.1)
             except Exception as exc:   # serial unplugged, socket error
+                if self._stop.is_set():    # close() shut the port under us: not a lost link
+                    return
                 self._drop(f"{type(exc).__name__}: {exc}")
                 continue
             for msg in msgs:
                 self._dispatch(msg)
 
     def _read(self, conn: Any, timeout_s: float) -> list[Any]:
+        if conn is None:
+            return []
         fd = getattr(conn, "fd", None)
         if fd is None:
             self._stop.wait(min(timeout_s, 0.05))

@@ -191,7 +191,8 @@ class Service:
         self._threads: dict[str, threading.Thread] = {}
         self._first_frame = threading.Event()
         self._startup_error: UavDepthError | None = None
-        self._busy_since: float | None = None
+        self._busy_since: float | None = None      # when the stereo stage took its current frame
+        self._source_since: float | None = None    # when the capture thread entered the source (read/open)
         self._reload_lock = threading.Lock()
         self._reload_now = threading.Event()
         self._watcher: FileWatcher | None = None
@@ -369,7 +370,11 @@ class Service:
             if self._stopping.wait(delay):
                 return
             try:
-                self.source.open()
+                self._source_since = time.monotonic()
+                try:
+                    self.source.open()
+                finally:
+                    self._source_since = None
                 return
             except SourceError as exc:
                 log.info("camera still missing (%s); next try in %.1f s", exc, min(delay * 2, svc.reconnect_max_s))
@@ -382,7 +387,11 @@ class Service:
         last = time.monotonic()
         while not self._stopping.is_set():
             try:
-                frame = self.source.read(min(0.2, svc.frame_timeout_s))
+                self._source_since = time.monotonic()
+                try:
+                    frame = self.source.read(min(0.2, svc.frame_timeout_s))
+                finally:
+                    self._source_since = None
             except EndOfStream as exc:
                 log.info("%s", exc)
                 self.ended = str(exc)
@@ -473,12 +482,18 @@ class Service:
 
     # -- main loop -------------------------------------------------------------------------------
     def healthy(self, now: float | None = None) -> bool:
-        """True while every loop is alive and no frame is stuck in the stereo stage."""
+        """True while every loop is alive and neither the stereo stage nor the source is stuck.
+
+        Stuck: one frame in the stereo stage, or one read/open of the source, for longer
+        than ``service.stall_timeout_s``. Then WATCHDOG=1 stops and systemd restarts us.
+        """
         now = time.monotonic() if now is None else now
-        busy = self._busy_since
+        limit = self.config.service.stall_timeout_s
+        busy, reading = self._busy_since, self._source_since
         return (self.clock is not None and self.clock.alive
                 and all(t.is_alive() for t in self._threads.values())
-                and (busy is None or now - busy < self.config.service.stall_timeout_s))
+                and (busy is None or now - busy < limit)
+                and (reading is None or now - reading < limit))
 
     def status_line(self) -> str:
         now = time.monotonic()
@@ -542,8 +557,12 @@ class Service:
         for name, t in self._threads.items():
             t.join(left())
             if t.is_alive():
-                busy = self._busy_since
-                what = f" (busy for {time.monotonic() - busy:.1f} s on a frame)" if name == "stereo" and busy else ""
+                busy, reading = self._busy_since, self._source_since
+                what = ""
+                if name == "stereo" and busy:
+                    what = f" (busy for {time.monotonic() - busy:.1f} s on a frame)"
+                elif name == "capture" and reading:
+                    what = f" (stuck for {time.monotonic() - reading:.1f} s in the source)"
                 abandoned.append(f"the {name} thread{what}")
         if self._watcher is not None and not self._watcher.join(left()):
             abandoned.append("the parameter watcher")

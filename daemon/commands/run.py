@@ -42,6 +42,7 @@ def _overrides(args: argparse.Namespace) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     import logging
+    import os
     import signal
     import sys
     import threading
@@ -93,4 +94,12 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_ERROR
     if service.ended:
         logging.getLogger("uav_depth.service").info("source ended: %s", service.ended)
-    return 0 if report is not None else EXIT_ERROR
+    if report.abandoned:
+        # A thread left inside OpenCV would be unwound by the interpreter's exit (pthread_exit
+        # through OpenCV's catch-all handlers), which aborts the process ("FATAL: exception not
+        # rethrown", SIGABRT). Shutdown already said what it abandoned: leave without finalising.
+        logging.shutdown()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(0)
+    return 0

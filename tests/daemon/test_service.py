@@ -205,3 +205,59 @@ def test_ranging_roi_outside_the_matching_roi_is_warned():
     warning = check_roi_against_compute((0, 0, 640, 360), params, 640, 360)
     assert "reaches outside the parameters' matching region compute.roi (= [160, 90, 480, 270] px" in warning
     assert check_roi_against_compute((0, 0, 640, 360), PARAMS_64, 640, 360) is None   # the whole image
+
+
+class HangingSource:
+    """A camera driver that delivers one frame, then hangs in read() (seen with V4L2 on a bad USB hub)."""
+
+    kind = "hanging"
+
+    def __init__(self):
+        import numpy as np
+
+        from uav_depth.daemon.scene import Scene, SceneConfig
+        from uav_depth.daemon.sources import Frame
+
+        cfg = SceneConfig(**SCENE)
+        self.calibration = cfg.calibration
+        self._pair = Scene(cfg).render(rng=np.random.default_rng(0))
+        self._frame = lambda: Frame(self._pair.left, self._pair.right, 0)
+        self.release = threading.Event()
+        self.reads = 0
+
+    def describe(self):
+        return "a source that hangs"
+
+    def open(self):
+        pass
+
+    def read(self, timeout_s):
+        self.reads += 1
+        if self.reads == 1:
+            return self._frame()
+        self.release.wait(60)     # ignores timeout_s, like the driver
+        return None
+
+    def close(self):
+        pass
+
+
+def test_a_hung_source_stops_the_watchdog_and_shutdown_stays_bounded(rx):
+    source = HangingSource()
+    cfg = config(rx, service={"stall_timeout_s": 0.5, "shutdown_timeout_s": 0.3})
+    svc = Service(cfg, source=source)
+    stop = threading.Event()
+    result = {}
+    runner = threading.Thread(target=lambda: result.setdefault("report", svc.run(stop)), daemon=True)
+    try:
+        runner.start()
+        assert rx.wait(lambda: svc.stats.frames >= 1 and source.reads >= 2)
+        assert svc.healthy()
+        assert rx.wait(lambda: not svc.healthy(), timeout=5)       # no more WATCHDOG=1: systemd restarts us
+        stop.set()
+        runner.join(10)
+        report = result["report"]
+        assert report.duration_s < 0.3 + 0.2
+        assert any(item.startswith("the capture thread (stuck for") for item in report.abandoned), report.abandoned
+    finally:
+        source.release.set()
