@@ -166,6 +166,9 @@ class Service:
         self._stopping = threading.Event()
         kwargs: dict[str, Any] = {"stop_event": self._stopping}
         if pose_provider is not None:
+            if config.source_kind != "synthetic":
+                raise ConfigError("source.kind", "must be synthetic when a pose provider drives the rig",
+                                  config.source_kind)
             kwargs["pose_provider"] = pose_provider
         self.source: FrameSource = source if source is not None else create_source(config.source, **kwargs)
         svc = config.service

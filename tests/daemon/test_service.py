@@ -261,3 +261,24 @@ def test_a_hung_source_stops_the_watchdog_and_shutdown_stays_bounded(rx):
         assert any(item.startswith("the capture thread (stuck for") for item in report.abandoned), report.abandoned
     finally:
         source.release.set()
+
+
+def test_a_replay_of_a_logged_session_runs_to_its_end(rx, tmp_path, params_file):
+    """Frames the daemon logged replay through the daemon again, paced at their recorded time_s."""
+    logs = tmp_path / "logs"
+    svc = Service(config(rx, params_file=str(params_file), logging={"dir": str(logs), "every_n": 2}))
+    with Running(svc):
+        assert rx.wait(lambda: svc.framelog is not None and svc.framelog.written >= 4)
+    replay = Service(config(rx, params_file=str(params_file), source={"kind": "replay", "path": str(logs)}))
+    start = time.monotonic()
+    report = replay.run(threading.Event())      # returns by itself after the last frame
+    assert report.clean and replay.ended and "frames delivered" in replay.ended
+    assert replay.stats.frames >= 4
+    assert time.monotonic() - start > 0.5        # paced at the recorded 0.2 s per logged frame, not as fast as possible
+    assert replay.last_estimate.truth_m == pytest.approx(0.8, rel=5e-3)
+    assert replay.last_estimate.measurement.distance_m == pytest.approx(0.8, rel=0.03)
+
+
+def test_a_pose_provider_needs_the_synthetic_source(rx):
+    with pytest.raises(ConfigError, match="source.kind must be synthetic when a pose provider drives the rig"):
+        Service(config(rx, source={"kind": "uvc"}), pose_provider=lambda t: Pose())
