@@ -112,10 +112,12 @@ def bench_loop(params_name, params, seconds: float, tmp: Path) -> None:
     rx.close()
     st = svc.stats.stages
     ds_rate = (len(window) - 1) / (window[-1][0] - window[0][0]) if len(window) > 1 else 0.0
+    gaps = np.diff([t for t, _ in window]) * 1e3
     valid = sum(v for _, v in window) / max(1, len(window))
     print(f"  {params_name:<8} stereo {(f1 - f0) / (t1 - t0):5.1f} frames/s | " + " | ".join(
         f"{k} {pct(st[k], 50):6.1f} / {pct(st[k], 90):6.1f}" for k in ("rectify", "disparity", "ranging", "latency"))
-        + f" ms (median / p90) | DISTANCE_SENSOR {ds_rate:5.2f} Hz, {100 * valid:5.1f} % valid")
+        + f" ms (median / p90) | DISTANCE_SENSOR {ds_rate:5.2f} Hz, gap p50/p99/max {pct(gaps, 50):.0f}/"
+        f"{pct(gaps, 99):.0f}/{gaps.max() if gaps.size else float('nan'):.0f} ms, {100 * valid:5.1f} % valid")
 
 
 def bench_ranging(params_name, params, seeds: int) -> None:
