@@ -134,8 +134,14 @@ def plot_pareto(path: Path, points: Sequence[tuple[float, float]], front: Sequen
     if points:
         ms, val = zip(*points)
         ax.scatter(ms, val, s=6, alpha=0.4, label="evaluated (search timing)")
+        # the interesting part: the better half of the candidates (failures and wild ones off-scale)
+        v = np.asarray(val, float)
+        lo, hi = np.percentile(v, [0, 50]) if FITNESS[metric].direction < 0 else np.percentile(v, [50, 100])
+        pad = 0.05 * (hi - lo) if hi > lo else 1.0
+        ax.set_ylim(lo - pad, hi + pad)
     if front:
-        ax.plot([f["ms"] for f in front], [f["value"] for f in front], "o-", color="C1", label="front, re-timed")
+        timed = "re-timed" if any("search_ms" in f for f in front) else "search timing"
+        ax.plot([f["ms"] for f in front], [f["value"] for f in front], "o-", color="C1", label=f"front, {timed}")
     if chosen:
         ax.plot([chosen["ms"]], [chosen["value"]], "*", ms=14, color="C3", label="chosen")
     if max_ms:

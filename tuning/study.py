@@ -273,6 +273,14 @@ def pareto_front(points: Sequence[tuple[float, float, Any]]) -> list[tuple[float
     return front
 
 
+def search_front(store: RunStore, fitness_name: str) -> list[dict[str, Any]]:
+    """Pareto front of (fitness, ms per frame) over every stored evaluation, with the search's own timings."""
+    fitness = FITNESS[fitness_name]
+    pts = [(fitness.utility(ev.value), ev.ms, (key, ev)) for key, params, ev in store.evaluations()
+           if ev.status == OK and math.isfinite(ev.ms) and not params.get("invalid")]
+    return [{"key": key, "value": ev.value, "ms": ms} for _, ms, (key, ev) in pareto_front(pts)]
+
+
 def time_params(params: StereoParams, frames: FrameSet, repeats: int = 3) -> float:
     """Median over ``repeats`` of the mean ms per frame, in this process with OpenCV's default threads
     (how the daemon runs it)."""

@@ -75,7 +75,8 @@ def run(args: argparse.Namespace) -> int:
     from ..report import comparison, write_report
     from ..space import describe_space, parse_keys
     from ..store import RunStore
-    from ..study import (Study, StudyConfig, TuneInterrupted, choose_under_budget, full_scores, result_summary)
+    from ..study import (Study, StudyConfig, TuneInterrupted, choose_under_budget, full_scores, result_summary,
+                         search_front)
 
     if args.max_ms is not None and not args.max_ms > 0:
         raise ConfigError("--max-ms", "must be greater than 0", args.max_ms)
@@ -116,6 +117,7 @@ def run(args: argparse.Namespace) -> int:
                 bar.close()
                 tuned = result.best_params()
                 chosen, chosen_value, budget = tuned, result.best.best_value, None
+                front = search_front(store, args.metric)
                 if args.max_ms is not None:
                     choice = choose_under_budget(store, args.metric, train, args.max_ms)
                     budget = {"max_ms": args.max_ms, "front": choice.front,
@@ -137,7 +139,8 @@ def run(args: argparse.Namespace) -> int:
 
     cmp = comparison({n: scores[(0, n)] for n in names}, {n: scores[(1, n)] for n in names})
     summary = result_summary(result)
-    summary.update(comparison=cmp, budget=budget, chosen={"value": chosen_value, "params": chosen.to_dict()},
+    summary.update(comparison=cmp, budget=budget or {"max_ms": None, "front": front},
+                   chosen={"value": chosen_value, "params": chosen.to_dict()},
                    frames={n: framesets[n].keys for n in names}, store=store.path,
                    evaluations_per_s=result.evaluated / result.wall_s if result.wall_s > 0 else None)
     held = cmp.get("holdout", {}).get("metrics", {}).get(args.metric, {})
