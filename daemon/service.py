@@ -24,6 +24,7 @@ Signal handlers (in the CLI) only set events: ``stop``, :meth:`Service.request_l
 from __future__ import annotations
 
 import collections
+import functools
 import logging
 import math
 import threading
@@ -57,8 +58,8 @@ class Stage:
     ranger: Ranger
     origin: str
 
-    @property
-    def hash(self) -> str:
+    @functools.cached_property
+    def hash(self) -> str:   # computed once: every frame's estimate carries it
         return self.params.hash()
 
 
