@@ -209,7 +209,6 @@ def test_resume_skips_existing_and_replace_by_kind(session, tmp_path):
 def test_summary_for_reports(session, tmp_path):
     path, truths = session
     _write_refs(tmp_path / "refs", truths, "npy")
-    (path / "frames" / "000002_ref.npy").parent.mkdir(exist_ok=True)
     import_references(path, ImportConfig(tmp_path / "refs"))
     frames = Session(path).frames()
     (path / "frames" / "000001_ref.json").unlink()          # a reference nobody described
@@ -236,3 +235,18 @@ def test_cli_import_flags_then_imports_then_evaluates(session, tmp_path):
     assert show["by_kind"] == {"import": 3} and show["sources"][0]["scale"] == 4.0
     ev = json.loads(cli("evaluate", path, "--json").stdout)
     assert len(ev["frames"]) == 3 and ev["mean"]["valid"] > 0.3
+
+
+def test_show_names_device_references_as_lower_quality(session, tmp_path):
+    path, truths = session
+    f0 = next(iter_frames(path))
+    left, right = f0.load_pair()
+    SessionWriter(path, Calibration(200.0, 0.063, 320, 240)).write(
+        0, left, right, reference=truths["000000"],
+        reference_source={"kind": "device", "device": "oak", "note": "OAK StereoDepth depth"})
+    out = cli("reference", "show", path, "--frames")
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert lines[0] == "3 frames: 1 device, 2 none"
+    assert "s/000000" in lines[-3] and "device oak (camera depth: lower quality than a network)" in lines[-3]
+    assert lines[-1].startswith("s/000002") and "none (only the reference-free selfsup metric applies)" in lines[-1]
