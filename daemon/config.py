@@ -165,6 +165,7 @@ class RangingConfig:
     max_age_ms: float = 300.0
     max_distance_m: float = 10.0
     cluster_depth_m: float = 0.05
+    surface_quantile: float = 0.2
     max_jump_rel: float = 0.2
     confirm_frames: int = 2
 
@@ -180,6 +181,9 @@ class RangingConfig:
             0.05, 600.0),
         Key("cluster_depth_m", "float", 0.05, "depth band behind the nearest surface that belongs to the same object",
             0.001, 5.0),
+        Key("surface_quantile", "float", 0.2,
+            "share of the object's confident pixels nearer than the reported surface: 0.5 is the object's "
+            "median depth, lower reads its nearest surface (what the pruning tool meets)", 0.0, 0.5),
         Key("max_jump_rel", "float", 0.2, "a change larger than this fraction is held back until confirmed "
             "(single-frame outlier rejection); 0 disables", 0.0, 10.0),
         Key("confirm_frames", "int", 2, "consecutive agreeing frames that confirm a jump", 1, 100),

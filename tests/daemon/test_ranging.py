@@ -74,7 +74,7 @@ def test_stray_near_pixels_do_not_make_an_object():
 def test_uncertainty_from_the_disparity_spread():
     rng = np.random.default_rng(0)
     d = (22.05 + rng.normal(0, 0.6, (360, 640))).astype(np.float32)
-    m = ranger(RangingConfig(cluster_depth_m=0.5)).measure(_result(d))
+    m = ranger(RangingConfig(cluster_depth_m=0.5, surface_quantile=0.5)).measure(_result(d))
     fb = 350.0 * 0.063
     assert m.disparity_px == pytest.approx(22.05, abs=0.03)
     assert m.sigma_px == pytest.approx(0.6, rel=0.1)
@@ -139,3 +139,17 @@ def test_outlier_gate_holds_a_single_jump_and_accepts_a_confirmed_one():
     assert gate.accept(0.61, 0.5)              # confirmed by a second frame: accepted
     assert gate.accept(3.0, 2.0)               # after forget_s without data, anything goes
     assert OutlierGate(0.0, 2).accept(1.0, 0.0) and OutlierGate(0.0, 2).accept(5.0, 0.1)
+
+
+def test_surface_quantile_reads_the_near_side_of_a_round_branch():
+    """A horizontal cylinder of radius 3 cm whose nearest surface is 1 m away fills the ROI's rows:
+    the median reads about 13% of the radius behind the surface, the default quantile within 1.5 mm."""
+    fb, r, zc = 350.0 * 0.063, 0.03, 1.03
+    rows = 120                                           # the default ROI's rows: 120..239 of 360
+    y = np.linspace(-r, r, rows, endpoint=False) + r / rows
+    d = np.full((360, 640), np.nan, np.float32)
+    d[120:240] = np.repeat((fb / (zc - np.sqrt(r * r - y * y)))[:, None], 640, axis=1)
+    median = ranger(RangingConfig(surface_quantile=0.5)).measure(_result(d)).distance_m
+    near = ranger(RangingConfig()).measure(_result(d)).distance_m
+    assert median - 1.0 == pytest.approx(r * (1 - math.sqrt(0.75)), abs=1e-3)
+    assert abs(near - 1.0) < 1.5e-3 < median - 1.0
