@@ -94,8 +94,8 @@ class Evaluation:
     """The outcome of one candidate on one frame set.
 
     ``value``: mean fitness over frames (the fitness's worst when failed).
-    ``metrics``: means of cheap extra metrics (mse, bad2, valid; branch when the
-    frames allow). ``ms``: mean pipeline time per frame. ``per_frame``: the
+    ``metrics``: means over frames of every metric the frames allow (full
+    evaluations only). ``ms``: mean pipeline time per frame. ``per_frame``: the
     fitness of each frame, in frame order; ``frame_metrics`` every metric of each
     frame (full evaluations only).
     """
@@ -118,15 +118,11 @@ def failed(fitness: Fitness, reason: str, seconds: float = 0.0) -> Evaluation:
     return Evaluation(FAILED, fitness.worst, reason=reason, seconds=seconds)
 
 
-def _frame_extras(frame: FrameData, res: DisparityResult, params: StereoParams, full: bool) -> dict[str, float]:
+def _frame_metrics(frame: FrameData, res: DisparityResult, params: StereoParams) -> dict[str, float]:
+    """Every metric the frame allows (reports)."""
     out: dict[str, float] = {}
     if frame.reference is not None:
-        if full:
-            out.update(metrics.score(frame.reference, res.disparity).as_dict())
-        else:
-            out["mse"] = metrics.mse(frame.reference, res.disparity)
-            out["bad2"] = metrics.bad(frame.reference, res.disparity, 2.0)
-            out["valid"] = metrics.valid_fraction(frame.reference, res.disparity)
+        out.update(metrics.score(frame.reference, res.disparity).as_dict())
     if frame.has_branch:
         out["branch"] = _branch(frame, res, params)
     return out
@@ -135,8 +131,9 @@ def _frame_extras(frame: FrameData, res: DisparityResult, params: StereoParams, 
 def evaluate(params: StereoParams, frames: FrameSet, fitness: Fitness, full: bool = False) -> Evaluation:
     """Score ``params`` on ``frames``; never raises for a bad candidate (returns FAILED).
 
-    ``full``: every metric of :func:`metrics.score` per frame (reports); otherwise
-    only the cheap ones beside the fitness (the search loop).
+    ``full``: every metric the frames allow, per frame (reports); otherwise the
+    fitness alone (the search loop: the pipeline is nearly all of the cost, but
+    extra metrics would still add a few % to every evaluation).
     """
     t_start = time.perf_counter()
     try:
@@ -156,7 +153,8 @@ def evaluate(params: StereoParams, frames: FrameSet, fitness: Fitness, full: boo
             if math.isnan(value):
                 return failed(fitness, f"{frame.key}: {fitness.name} is NaN", time.perf_counter() - t_start)
             per_frame.append(value)
-            extras.append(_frame_extras(frame, res, params, full))
+            if full:
+                extras.append(_frame_metrics(frame, res, params))
     except Exception as exc:  # a candidate that raises is a failed trial; the run goes on
         return failed(fitness, f"{type(exc).__name__}: {exc}", time.perf_counter() - t_start)
     names = sorted(set().union(*extras)) if extras else []

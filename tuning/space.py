@@ -201,6 +201,7 @@ SCALES: dict[str, str] = {
     "sgbm.speckle_range": "log",
     "wls.lambda": "log",
     "wls.sigma_color": "log",
+    "sgbm.num_disparities": "log",
 }
 
 #: Keys the improved space tunes by default: the paper's nine, plus the block size.
@@ -261,12 +262,14 @@ class Dim:
             opts = self.choices if self.kind == "choice" else (False, True)
             return opts[min(int(u * len(opts)), len(opts) - 1)]
         first, last, step = self._grid(self.lo if lo is None else lo, self.hi)
-        if step == 2 or step == 16:
-            # uniform over the allowed values (few of them): pick by index
+        if (step == 2 or step == 16) and self.scale != "log":
+            # uniform over the allowed values: pick by index
             n = int((last - first) // step) + 1
             return int(first + step * min(int(u * n), n - 1))
         t0, t1 = self._t(first), self._t(last)
         v = self._inv(t0 + u * (t1 - t0))
+        if step == 2 or step == 16:  # log scale over a grid: the nearest allowed value
+            return int(min(max(first + step * round((v - first) / step), first), last))
         if self.kind == "int":
             return int(min(max(round(v), first), last))
         # FLOAT_DIGITS significant digits: the baseline's 8000 and 1.5 come back exactly,
@@ -278,7 +281,7 @@ class Dim:
             opts = self.choices if self.kind == "choice" else (False, True)
             return (opts.index(value) + 0.5) / len(opts)
         first, last, step = self._grid(self.lo if lo is None else lo, self.hi)
-        if step == 2 or step == 16:
+        if (step == 2 or step == 16) and self.scale != "log":
             n = int((last - first) // step) + 1
             k = min(max(round((value - first) / step), 0), n - 1)
             return (k + 0.5) / n

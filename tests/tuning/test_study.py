@@ -100,7 +100,10 @@ def test_every_fitness_scores_the_baseline(tiny_frames, metric):
     ev = evaluate(TINY_BASE, tiny_frames, FITNESS[metric])
     assert ev.status == "ok" and len(ev.per_frame) == 2 and math.isfinite(ev.value)
     assert ev.value == pytest.approx(np.mean(ev.per_frame))
-    assert "mse" in ev.metrics and "branch" in ev.metrics
+    full = evaluate(TINY_BASE, tiny_frames, FITNESS[metric], full=True)
+    assert full.value == ev.value and full.metrics[metric] == pytest.approx(ev.value)
+    assert {"mse", "psnr", "ssim", "bad2", "valid", "branch"} <= set(full.metrics)
+    assert [f["id"] for f in full.frame_metrics] == ["tiny/000000", "tiny/000001"]
 
 
 def test_branch_fitness_is_the_daemons_ranging_error(tiny_frames):
@@ -114,7 +117,7 @@ def test_branch_fitness_is_the_daemons_ranging_error(tiny_frames):
 def test_selfsup_fitness_needs_no_reference(tiny_frames):
     no_ref = FrameSet("train", tuple(FrameData(f.key, f.left, f.right) for f in tiny_frames.frames))
     assert FITNESS["selfsup"].needs == ()
-    good = evaluate(TINY_BASE, no_ref, FITNESS["selfsup"])
+    good = evaluate(TINY_BASE, no_ref, FITNESS["selfsup"], full=True)
     bad = evaluate(TINY_BASE.replace(**{"sgbm.uniqueness_ratio": 95}), no_ref, FITNESS["selfsup"])
     assert good.status == "ok" and 0 <= good.value <= 1
     assert "mse" not in good.metrics
