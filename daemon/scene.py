@@ -198,6 +198,13 @@ def _texture(rng: np.random.Generator, size: int, bark: bool) -> np.ndarray:
 
 _TEX_SIZE = 512
 _TEX_M = {True: 0.25, False: 3.0}    # metres one bark / foliage texture tile spans at texture_scale 1
+_BG_ANGLE = math.atan((math.sqrt(5.0) - 1.0) / 2.0)
+_BG_COS, _BG_SIN = np.float32(math.cos(_BG_ANGLE)), np.float32(math.sin(_BG_ANGLE))
+#: Along an image row the tilted tile comes back close to itself (within 9% of a tile
+#: across the row) only after sqrt(3**2 + 5**2) tiles: the 3/5 convergent of the tangent.
+_BG_REPEAT_TILES = math.sqrt(34.0)
+_BARK_ANGLE = math.atan((3.0 - math.sqrt(5.0)) / 2.0)     # tangent 1/phi**2, about 20.9 degrees
+_BARK_COS, _BARK_SIN = math.cos(_BARK_ANGLE), math.sin(_BARK_ANGLE)
 _LIGHT = np.array([-0.4, -0.6, 0.7]) / np.linalg.norm([-0.4, -0.6, 0.7])   # toward the light
 
 
@@ -303,8 +310,12 @@ class Scene:
         depth = np.where(hit, tb, np.float32(np.inf))
         px = origin[0] + tb * dx
         py = origin[1] + tb * dy
+        # The foliage tile is laid at an angle whose tangent is the golden ratio's
+        # fractional part, so no image row repeats it: a tile laid square repeated
+        # every 3 m, inside SGBM's search range for far backgrounds, and SGBM
+        # matched the wrong repeat with full confidence.
         scale = _TEX_SIZE / _TEX_M[False] * c.texture_scale
-        tex = self._sample(2, px * scale, py * scale)
+        tex = self._sample(2, (px * _BG_COS - py * _BG_SIN) * scale, (px * _BG_SIN + py * _BG_COS) * scale)
         intensity = np.where(hit, 0.55 * tex + 0.25, np.float32(0.0))
 
         for cyl in self.cylinders:
@@ -410,8 +421,12 @@ class Scene:
         e2 = np.cross(a, e1)
         ang = np.arctan2(nx * e2[0] + ny * e2[1] + nz * e2[2], nx * e1[0] + ny * e1[1] + nz * e1[2])
         scale = _TEX_SIZE / _TEX_M[True] * self.config.texture_scale
-        tu = (ang * cyl.radius * scale).astype(np.float32)
-        tv = (ss * scale).astype(np.float32)
+        # Bark grain spirals at an irrational angle, so the tile does not repeat along the
+        # branch: laid straight it came back every 0.25 m, inside SGBM's search range for a
+        # branch at 1.7 m, and SGBM matched the wrong repeat (a false branch at 0.32 m).
+        au, av = ang * cyl.radius, ss
+        tu = ((au * _BARK_COS - av * _BARK_SIN) * scale).astype(np.float32)
+        tv = ((au * _BARK_SIN + av * _BARK_COS) * scale).astype(np.float32)
         tex = self._sample_points(cyl.texture, tu, tv)
         shade = 0.35 + 0.65 * np.clip((nx * _LIGHT[0] + ny * _LIGHT[1] + nz * _LIGHT[2]) / cyl.radius, 0, 1)
         depth.ravel()[flat] = tt
@@ -452,13 +467,14 @@ class Scene:
 def background_period_px(config: SceneConfig) -> float:
     """Image period of the background's texture tile, px (at the identity pose).
 
-    The far plane repeats one texture tile every ``3 / texture_scale`` m. When
-    that period in the image lies inside the disparity search range, SGBM finds
-    a false but consistent match one period away: an artefact of the scene, not
-    of the matcher (real foliage does not repeat exactly). Benchmarks that judge
-    ranging keep it outside the search range.
+    The far plane's texture tile spans ``3 / texture_scale`` m and is laid at an
+    irrational angle, so an image row meets a near-repeat of it only every
+    sqrt(34) tiles. When that period in the image lies inside the disparity search
+    range, SGBM could find a false but consistent match one period away: an
+    artefact of the scene, not of the matcher (real foliage does not repeat).
+    Benchmarks that judge ranging keep it outside the search range.
     """
-    tile_m = _TEX_M[False] / config.texture_scale
+    tile_m = _TEX_M[False] * _BG_REPEAT_TILES / config.texture_scale
     return tile_m * config.focal_px / config.background_distance_m
 
 
@@ -513,7 +529,8 @@ def write_session(outdir, frames: int, seed: int, base: SceneConfig | None = Non
     for i in range(frames):
         rng = np.random.default_rng([seed, i])
         fixed = {} if fixed_distance is None else {"branch_distance_m": fixed_distance}
-        cfg = vary(base, rng, **fixed) if vary_scenes else replace(base, seed=int(rng.integers(0, 2**31 - 1)))
+        cfg = (vary(base, rng, **fixed) if vary_scenes
+               else replace(base, seed=int(rng.integers(0, 2**31 - 1)), **fixed))
         frame = Scene(cfg).render(rng=rng)
         roi = cfg.center_roi
         meta = {"branch_distance_m": frame.nearest_branch_distance(roi), "roi": list(roi), "scene": cfg.to_dict()}

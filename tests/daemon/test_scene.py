@@ -107,19 +107,33 @@ def test_texture_wrap_is_numpy_mod_bit_for_bit():
         assert np.array_equal(_wrap(xs), np.mod(xs, _TEX_SIZE))
 
 
-def test_background_period_is_where_the_background_repeats():
-    """The far plane's texture tile repeats every background_period_px in the image (the reason the
-    benchmark keeps that period outside the disparity search)."""
+def test_textures_do_not_repeat_inside_a_search_range():
+    """A square-laid tile repeated every tile width along a row, and SGBM matched the wrong repeat
+    with full confidence (false near branches). The background tile is laid at an irrational angle
+    and the bark spirals, so one tile width along a row shows different texture."""
     from uav_depth.daemon.scene import background_period_px
 
-    # 3 m tile / 1.25 * 700 px / 8.4 m = 200 px exactly
+    # a square 3 m tile at texture_scale 1.25 and 8.4 m would repeat every 200 px
     cfg = SceneConfig(width=640, height=120, focal_px=700.0, background_distance_m=8.4, texture_scale=1.25,
                       n_branches=0, noise_std=0.0, branch_distance_m=0.5, seed=3)
-    assert background_period_px(cfg) == pytest.approx(200.0)
+    assert background_period_px(cfg) == pytest.approx(200.0 * np.sqrt(34.0))
     f = Scene(cfg).render()
     bg = f.labels == 0
-    both = bg[:, :-200] & bg[:, 200:]
-    a, b = f.left[:, :-200].astype(int), f.left[:, 200:].astype(int)
-    c = f.left[:, 100:].astype(int)
-    assert np.median(np.abs(a - b)[both]) <= 1                               # one period: the same texture
-    assert np.median(np.abs(f.left[:, :-100].astype(int) - c)[bg[:, :-100] & bg[:, 100:]]) > 5   # half: not
+    for shift in (200, 100):
+        both = bg[:, :-shift] & bg[:, shift:]
+        diff = np.abs(f.left[:, :-shift].astype(int) - f.left[:, shift:].astype(int))[both]
+        assert np.median(diff) > 5, shift
+    # a horizontal branch 0.5 m away: the 0.25 m bark tile would repeat every 350 px
+    cfg = SceneConfig(width=1280, height=200, focal_px=700.0, branch_distance_m=0.5, branch_angle_deg=0.0,
+                      n_branches=0, noise_std=0.0, seed=3)
+    f = Scene(cfg).render()
+    row = 100
+    br = f.labels[row] == 2
+
+    def median_diff(shift):
+        both = br[:-shift] & br[shift:]
+        assert both.sum() > 100
+        return np.median(np.abs(f.left[row, :-shift].astype(int) - f.left[row, shift:].astype(int))[both])
+
+    # laid straight, the tile period gave nearly identical pixels; now it differs like any other shift
+    assert median_diff(350) > 1 and median_diff(350) >= 0.5 * median_diff(173)

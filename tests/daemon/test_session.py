@@ -53,3 +53,10 @@ def test_frames_independent_of_count(tmp_path):
 def test_no_session(tmp_path):
     with pytest.raises(FileFormatError, match="no session found"):
         find_sessions(tmp_path)
+
+
+def test_fixed_distance_holds_with_fixed_conditions(tmp_path):
+    base = SceneConfig(width=160, height=120, focal_px=100.0)
+    write_session(tmp_path / "s", 2, seed=1, base=base, vary_scenes=False, fixed_distance=0.7)
+    for frame in iter_frames(tmp_path / "s"):
+        assert frame.load_meta()["scene"]["branch_distance_m"] == 0.7
