@@ -6,8 +6,8 @@
 #   /opt/uav-depth/venv/                Python virtual environment with uav-depth (root-owned, read-only to the service)
 #   /opt/uav-depth/share/               README.md, the unit, example configs
 #   /etc/uav-depth/config.yaml          from an example, root:uav-depth 0640; an existing one is never overwritten
-#   /var/lib/uav-depth/{params.yaml,logs/}  state, uav-depth:uav-depth 0750; params.yaml (the default
-#                                       parameters) only if absent and the installed package can write it
+#   /var/lib/uav-depth/{params.yaml,logs/}  state, uav-depth:uav-depth 0750; params.yaml (deploy/params-flight.yaml,
+#                                       checked by the installed package) only if absent
 #   /etc/udev/rules.d/80-uav-depth-oak.rules  OAK-D USB access for group video
 #   /etc/systemd/system/uav-depth.service     enabled (multi-user.target), not started
 # Idempotent: a second run upgrades the package and changes nothing else.
@@ -169,14 +169,16 @@ params="$root/var/lib/uav-depth/params.yaml"
 if [ -e "$params" ]; then
     say "keeping existing $params"
 elif [ $dry -eq 1 ]; then
-    say "+ $root$venv/bin/uav-depth params default > $params"
-elif why=$("$root$venv/bin/python" -m uav_depth.daemon.cli params default 2>&1 >"$params.tmp"); then
-    # The defaults come from the installed schema itself: no second copy of them here.
-    chmod 0640 "$params.tmp" && mv "$params.tmp" "$params"
+    say "+ install -m 0640 $here/params-flight.yaml $params (after uav-depth params check)"
+elif why=$("$root$venv/bin/python" -m uav_depth.daemon.cli params check "$here/params-flight.yaml" 2>&1); then
+    # The flight file, not the manual baseline: the baseline takes about 0.6 s per 1280x720
+    # frame on a 2-core computer, older than any estimate the daemon may send as valid.
+    # It is checked by the installed schema itself before it becomes the daemon's file.
+    install -m 0640 "$here/params-flight.yaml" "$params.tmp" && mv "$params.tmp" "$params"
     own uav-depth uav-depth "$params"
 else
     rm -f "$params.tmp"
-    say "not writing $params: the installed package does not run (${why##*$'\n'}); the daemon uses its built-in defaults"
+    say "not writing $params: the installed package does not accept it (${why##*$'\n'}); the daemon uses its built-in defaults"
 fi
 
 # 5. Devices: OAK-D over USB for group video.

@@ -191,6 +191,14 @@ def test_install_lays_down_the_expected_files(installed):
             assert (st.st_uid, st.st_gid) == (uid, gid), f"{rel}: owned {st.st_uid}:{st.st_gid}, want {uid}:{gid}"
     assert (root / "etc/systemd/system/uav-depth.service").read_bytes() == UNIT.read_bytes()
     assert (root / "etc/uav-depth/config.yaml").read_bytes() == (DEPLOY / "examples/zed-mini.yaml").read_bytes()
+    # The flight parameters, not the 0.6 s-per-frame manual baseline, once the installed package has
+    # checked them; this test installs with --no-deps, where the package cannot run and says so.
+    params = root / "var/lib/uav-depth/params.yaml"
+    if params.exists():
+        assert params.read_bytes() == (DEPLOY / "params-flight.yaml").read_bytes()
+        assert stat.S_IMODE(params.stat().st_mode) == 0o640
+    else:
+        assert "not writing" in proc.stdout + proc.stderr and "does not accept it" in proc.stdout + proc.stderr
     link = root / "etc/systemd/system/multi-user.target.wants/uav-depth.service"
     assert os.readlink(link) == "/etc/systemd/system/uav-depth.service"
     # The user: a system account without a login shell, in exactly the groups the unit names.
