@@ -23,7 +23,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
 
 
-def _overrides(args: argparse.Namespace) -> dict:
+def overrides_from_args(args: argparse.Namespace) -> dict:
     from uav_depth.daemon.config import parse_value
     from uav_depth.daemon.errors import ConfigError
 
@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
                         format="%(levelname)s %(name)s: %(message)s")
     err = lambda exc: print(f"uav-depth run: error: {exc}", file=sys.stderr, flush=True)  # noqa: E731
     try:
-        config = load_run_config(args.config, _overrides(args))
+        config = load_run_config(args.config, overrides_from_args(args))
     except (ConfigError, CalibrationError, FileFormatError) as exc:
         err(exc)
         return EXIT_CONFIG

@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     log = logging.getLogger("uav_depth.sitl")
     err = lambda exc: print(f"uav-depth sitl: error: {exc}", file=sys.stderr, flush=True)  # noqa: E731
     try:
-        config = load_run_config(args.config, run_command._overrides(args))
+        config = load_run_config(args.config, run_command.overrides_from_args(args))
         if config.source_kind != "synthetic":
             raise ConfigError("source.kind", "must be synthetic for uav-depth sitl (frames are rendered from the "
                               "vehicle's pose)", config.source_kind, str(args.config) if args.config else None)
