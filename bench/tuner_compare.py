@@ -40,7 +40,7 @@ def load(data: str, holdout: str | None, needs):
 
 
 def main() -> int:
-    from uav_depth.daemon.params import DEFAULT_PARAMS, load_params
+    from uav_depth.daemon.params import DEFAULT_PARAMS, load_params, params_from_dict
     from uav_depth.tuning.executor import make_executor
     from uav_depth.tuning.objective import FITNESS
     from uav_depth.tuning.report import PAPER_CHANGE, comparison
@@ -82,11 +82,16 @@ def main() -> int:
             res = study.run()
             wall = time.perf_counter() - t0
             bests = [r.best_value for r in res.runs]
-            scores = full_scores(ex, [base, res.best_params()], names)
-            cmp = comparison({n: scores[(0, n)] for n in names}, {n: scores[(1, n)] for n in names})
+            run_params = [params_from_dict(r.best_params) for r in res.runs if r.best_params is not None]
+            scores = full_scores(ex, [base, *run_params], names)
+            best_i = 1 + [r.run for r in res.runs if r.best_params is not None].index(res.best.run)
+            cmp = comparison({n: scores[(0, n)] for n in names}, {n: scores[(best_i, n)] for n in names})
+            # every run's best on every frame set: the spread says how much one run can be trusted
+            per_run = {n: [comparison({n: scores[(0, n)]}, {n: scores[(i, n)]})[n]["metrics"]
+                           for i in range(1, len(run_params) + 1)] for n in names}
             out["results"][opt] = {"best_per_run": bests, "baseline": res.baseline.value, "comparison": cmp,
-                                   "evaluated": res.evaluated, "cached": res.cached, "wall_s": wall,
-                                   "best_params": res.best_params().to_dict(),
+                                   "per_run": per_run, "evaluated": res.evaluated, "cached": res.cached,
+                                   "wall_s": wall, "best_params": res.best_params().to_dict(),
                                    "history_mean": np.nanmean([r.history for r in res.runs], axis=0).tolist()}
             spread = f" (runs: mean {np.mean(bests):.4g} +- {np.std(bests):.2g})" if args.runs > 1 else ""
             print(f"\n{opt}: best {args.metric} {res.best.best_value:.4g} vs manual {res.baseline.value:.4g}{spread}; "
@@ -99,6 +104,10 @@ def main() -> int:
                         paper = f" [paper {PAPER_CHANGE[m]:+.2f}%]" if m in PAPER_CHANGE else ""
                         cells.append(f"{m} {row['manual']:.4g}->{row['tuned']:.4g} ({row['change_pct']:+.1f}%){paper}")
                 print(f"  {n:<8}" + "; ".join(cells))
+                if len(run_params) > 1:
+                    ch = [r[args.metric]["change_pct"] for r in per_run[n] if args.metric in r]
+                    print(f"  {'':<8}{args.metric} change of each run's best: mean {np.mean(ch):+.1f}% +- "
+                          f"{np.std(ch):.1f} ({', '.join(f'{c:+.1f}' for c in ch)})")
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(out, fh, indent=1, default=lambda o: None if isinstance(o, float) and not math.isfinite(o)
