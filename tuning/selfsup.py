@@ -42,7 +42,7 @@ ALPHA = 0.85
 #: Weight of the edge-aware smoothness term against the photometric term (Monodepth2
 #: uses 1e-3). Measured with bench/selfsup_rank.py: weights 0..0.1 change the rank
 #: correlation with true error by less than 0.01; 1.0 lowers it against bad-2 (0.91 ->
-#: 0.86 on the motorcycle pair, 0.88 -> 0.80 on synthetic 1280x720 frames). 0.01 keeps
+#: 0.86 on the motorcycle pair, 0.88 -> 0.81 on synthetic 1280x720 frames). 0.01 keeps
 #: the term as a tie-breaker without letting it outvote the photometric evidence.
 W_SMOOTH = 0.01
 #: Cost of a pixel without a usable disparity: the maximum of photo and smooth.
