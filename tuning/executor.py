@@ -118,6 +118,8 @@ class ProcessExecutor:
                                         initializer=_init_worker, initargs=(dict(framesets), fitness))
 
     def imap(self, tasks, stop=None):
+        if stop is not None and stop.is_set():
+            return
         futures = {self.pool.submit(_run_task, t): i for i, t in enumerate(tasks)}
         pending = set(futures)
         while pending:

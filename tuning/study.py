@@ -185,7 +185,7 @@ class Study:
         if n_cached:
             self.progress(n_cached, math.nan)
         keys = list(todo)
-        tasks = [Task(todo[k][0]) for k in keys]
+        tasks = [Task(todo[k][0]) for k in keys] if not self.stop.is_set() else []
         for j, ev in self.executor.imap(tasks, self.stop):
             key = keys[j]
             params, idx = todo[key]
@@ -196,9 +196,12 @@ class Study:
                 out[i] = ev
             self.progress(len(idx), ev.value if ev.ok else math.nan)
         if any(o is None for o in out):
-            raise TuneInterrupted(f"interrupted: {self.store.count()} evaluations are kept in {self.store.path}; "
-                                  "run the same command with --resume to continue")
+            raise self.interrupted()
         return out  # type: ignore[return-value]
+
+    def interrupted(self) -> TuneInterrupted:
+        return TuneInterrupted(f"interrupted: {self.store.count()} evaluations are kept in {self.store.path}; "
+                               "run the same command with --resume to continue")
 
     def candidate(self, genome: Sequence[float]) -> tuple[str, dict[str, Any], Evaluation | None]:
         """(cache key, parameter dict, a failed Evaluation if the schema rejects it)."""
@@ -221,6 +224,8 @@ class Study:
         opt = OPTIMIZERS[self.config.optimizer].factory(self.space, self.config.population, rng, self.base)
         res = RunResult(run)
         for gen in range(self.config.generations):
+            if self.stop.is_set():
+                raise self.interrupted()
             genomes = opt.ask()
             cands = [self.candidate(g) for g in genomes]
             before = self.evaluated
