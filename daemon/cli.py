@@ -70,6 +70,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except DependencyError as exc:
         print(f"uav-depth {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_ERROR
+    except ModuleNotFoundError as exc:
+        # The drone's base install has no extras; a command that needs one says which.
+        missing = DependencyError.from_missing(exc, f"uav-depth {args.command}")
+        if missing is None:
+            raise
+        print(f"uav-depth {args.command}: error: {missing}", file=sys.stderr)
+        return EXIT_ERROR
     except UavDepthError as exc:
         print(f"uav-depth {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_ERROR

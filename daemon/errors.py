@@ -39,6 +39,14 @@ class SourceError(UavDepthError):
     """A frame source cannot deliver frames (camera missing, replay ended, ...)."""
 
 
+#: Import name -> the pyproject extra that installs it. tests/deploy/test_base_install.py checks it
+#: against pyproject.toml, so an extra added there without an entry here fails CI.
+EXTRA_OF_MODULE = {
+    "deap": "tuning", "skimage": "tuning", "matplotlib": "tuning", "tqdm": "tuning", "optuna": "tuning",
+    "depthai": "oak", "ray": "ray", "onnxruntime": "onnx",
+}
+
+
 class DependencyError(UavDepthError):
     """An optional dependency (an extra) is needed but not installed."""
 
@@ -47,6 +55,13 @@ class DependencyError(UavDepthError):
             f"{purpose} needs the Python module {module!r}: "
             f"install it with pip install 'uav-depth[{extra}]'"
         )
+
+    @classmethod
+    def from_missing(cls, exc: ModuleNotFoundError, purpose: str) -> "DependencyError | None":
+        """The DependencyError for an extra's module that failed to import; None if it is no extra's."""
+        module = (exc.name or "").split(".")[0]
+        extra = EXTRA_OF_MODULE.get(module)
+        return None if extra is None else cls(module, extra, purpose)
 
 
 class FrameError(UavDepthError, ValueError):

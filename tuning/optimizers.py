@@ -25,7 +25,6 @@ import numpy as np
 
 from uav_depth.daemon.params import StereoParams
 
-from . import ga
 from .space import PaperSpace, SchemaSpace, Space
 
 
@@ -41,9 +40,18 @@ GA_LOCAL_FRACTION = 1 / 3
 GA_LOCAL_SIGMA = 0.1
 
 
+def _ga():
+    """The GA module, imported on use: it needs DEAP (the ``tuning`` extra), and merely listing the
+    optimisers (``uav-depth --help`` on the drone's base install) must not."""
+    from . import ga
+
+    return ga
+
+
 def paper_ga(space: Space, population: int, rng: np.random.Generator, base: StereoParams) -> Optimizer:
     """The paper: random start, two-point crossover 0.6, uniform integer mutation 0.3 per gene,
     top 5 carried over, parents by tournament of 3 (the paper does not say)."""
+    ga = _ga()
     elite = min(5, population - 1)
     return ga.GeneticAlgorithm(space, population, rng, ga.TwoPointCrossover(0.6),
                                ga.UniformIntMutation(int(min(space.low)), int(max(space.up)), 0.3),
@@ -53,6 +61,7 @@ def paper_ga(space: Space, population: int, rng: np.random.Generator, base: Ster
 def improved_ga(space: Space, population: int, rng: np.random.Generator, base: StereoParams) -> Optimizer:
     """Real-coded GA: the base and neighbours of it in the first generation, SBX crossover,
     polynomial mutation, tournament of 3, two elites."""
+    ga = _ga()
     start = space.encode(base)
     initial = [start]
     for _ in range(max(0, int(population * GA_LOCAL_FRACTION) - 1)):
