@@ -54,3 +54,20 @@ def test_bad_params_file_is_one_line_and_config_exit(tmp_path):
 def test_missing_logdir_is_clear(tmp_path):
     proc = cli("evaluate", str(tmp_path / "nowhere"), check=False)
     assert proc.returncode == 1 and "log directory not found" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_evaluate_scores_inside_the_params_region_and_names_its_references(tmp_path):
+    cli("synth", str(tmp_path / "s"), "--frames", "2", "--seed", "3", "--width", "320", "--height", "240",
+        "--focal-px", "200")
+    params = tmp_path / "p.yaml"
+    params.write_text("sgbm: {num_disparities: 48}\ncompute: {roi: [0.25, 0.25, 0.75, 0.75]}\n")
+    region = json.loads(cli("evaluate", str(tmp_path / "s"), "--json", "--params", str(params)).stdout)
+    assert region["scored"] == "compute.roi [0.25, 0.25, 0.75, 0.75]"
+    # outside the region the pipeline answers nothing by design: that must not count as missing pixels
+    assert region["mean"]["valid"] > 0.9
+    assert region["references"]["by_kind"] == {"synthetic": 2}
+    for json_file in (tmp_path / "s" / "frames").glob("*_ref.json"):
+        json_file.unlink()
+    text = cli("evaluate", str(tmp_path / "s")).stdout
+    # frames without provenance are one line, not one per frame
+    assert "scored: whole frame; measured against: 2 x unknown (no readable provenance recorded)\n" in text

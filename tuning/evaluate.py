@@ -14,7 +14,8 @@ from uav_depth.daemon.errors import FileFormatError
 from uav_depth.daemon.params import StereoParams
 from uav_depth.daemon.session import FrameRecord
 
-from .metrics import METRIC_NAMES, score
+from .metrics import METRIC_NAMES, in_box, score
+from .objective import scored_box
 
 
 @dataclass(frozen=True)
@@ -33,7 +34,7 @@ class FrameScore:
 
 
 def evaluate_frames(params: StereoParams, frames: Iterable[FrameRecord]) -> list[FrameScore]:
-    """Run the pipeline on each frame that has a reference and score it."""
+    """Run the pipeline on each frame that has a reference and score it (inside ``compute.roi``)."""
     pipeline = DisparityPipeline(params)
     out = []
     for frame in frames:
@@ -46,7 +47,7 @@ def evaluate_frames(params: StereoParams, frames: Iterable[FrameRecord]) -> list
         t0 = time.perf_counter()
         disp = pipeline.compute(left, right)
         ms = (time.perf_counter() - t0) * 1000.0
-        s = score(ref, disp)
+        s = score(*in_box(scored_box(params, ref.shape), ref, disp))
         out.append(FrameScore(frame.key, s.mse, s.psnr, s.ssim, s.bad1, s.bad2, s.valid, ms))
     return out
 

@@ -41,6 +41,9 @@ class FrameData:
     roi: tuple[int, int, int, int] | None = None
     focal_px: float | None = None
     baseline_m: float | None = None
+    #: Where the reference came from, one line (``uav_depth.tuning.reference.provenance.describe``);
+    #: reports say what the tuning was measured against. Not part of the digest: it changes no score.
+    reference_source: str | None = None
 
     @property
     def has_branch(self) -> bool:
@@ -80,6 +83,15 @@ class FrameSet:
             h.update(repr((f.branch_distance_m, f.roi, f.focal_px, f.baseline_m)).encode())
         return h.hexdigest()[:16]
 
+    def reference_sources(self) -> dict[str, int]:
+        """Where this set's references came from: description -> number of frames."""
+        out: dict[str, int] = {}
+        for f in self.frames:
+            if f.reference is not None:
+                src = f.reference_source or "unknown"
+                out[src] = out.get(src, 0) + 1
+        return out
+
     def filter(self, needs: Iterable[str]) -> "FrameSet":
         needs = tuple(needs)
         return FrameSet(self.name, tuple(f for f in self.frames if all(f.has(n) for n in needs)))
@@ -100,10 +112,15 @@ def load_frame(record: FrameRecord) -> FrameData:
     if record.session.calibration_path.exists():
         cal = record.session.calibration()
         focal, baseline = cal.focal_px, cal.baseline_m
+    source = None
+    if ref is not None:
+        from .reference.provenance import describe_source, read_provenance
+
+        source = describe_source(read_provenance(record))
     return FrameData(record.key, left, right, ref, mask,
                      float(truth) if isinstance(truth, (int, float)) else None,
                      tuple(int(v) for v in roi) if isinstance(roi, list) and len(roi) == 4 else None,
-                     focal, baseline)
+                     focal, baseline, source)
 
 
 def split_records(logdir: str | os.PathLike[str], holdout: str | None) -> tuple[list[FrameRecord], list[FrameRecord]]:

@@ -45,6 +45,21 @@ class Scores:
         return asdict(self)
 
 
+Box = tuple[int, int, int, int]
+
+
+def in_box(box: Box | None, *maps: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The maps cut to ``box`` = (x0, y0, x1, y1), x1/y1 exclusive (None: whole maps).
+
+    Scorers pass ``params.compute.roi_pixels(w, h)``: a pipeline that computes only its
+    region answers nothing outside it by design, and that is not an error to score.
+    """
+    if box is None:
+        return maps
+    x0, y0, x1, y1 = box
+    return tuple(m[y0:y1, x0:x1] for m in maps)
+
+
 def reference_valid(ref: np.ndarray) -> np.ndarray:
     return np.isfinite(ref) & (ref > 0)
 

@@ -52,8 +52,14 @@ class Fitness:
         return -math.inf if math.isnan(value) else self.direction * value
 
 
+def scored_box(params: StereoParams, shape: tuple[int, ...]) -> metrics.Box:
+    """Where a candidate is scored: its ``compute.roi`` (the whole frame unless it sets one)."""
+    return params.compute.roi_pixels(shape[1], shape[0])
+
+
 def _ref(fn: Callable[[np.ndarray, np.ndarray], float]) -> Callable[[FrameData, DisparityResult, StereoParams], float]:
-    return lambda frame, res, params: fn(frame.reference, res.disparity)
+    return lambda frame, res, params: fn(*metrics.in_box(scored_box(params, frame.reference.shape),
+                                                         frame.reference, res.disparity))
 
 
 def _branch(frame: FrameData, res: DisparityResult, params: StereoParams) -> float:
@@ -74,7 +80,7 @@ def _selfsup(frame: FrameData, res: DisparityResult, params: StereoParams) -> fl
     # tuner runs without it for every other metric.
     from uav_depth.tuning.selfsup import selfsup_loss
 
-    return float(selfsup_loss(frame.left, frame.right, res.disparity))
+    return float(selfsup_loss(frame.left, frame.right, res.disparity, box=scored_box(params, frame.left.shape)))
 
 
 FITNESS: dict[str, Fitness] = {
@@ -122,7 +128,8 @@ def _frame_metrics(frame: FrameData, res: DisparityResult, params: StereoParams)
     """Every metric the frame allows (reports)."""
     out: dict[str, float] = {}
     if frame.reference is not None:
-        out.update(metrics.score(frame.reference, res.disparity).as_dict())
+        box = scored_box(params, frame.reference.shape)
+        out.update(metrics.score(*metrics.in_box(box, frame.reference, res.disparity)).as_dict())
     if frame.has_branch:
         out["branch"] = _branch(frame, res, params)
     return out

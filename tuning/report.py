@@ -59,9 +59,19 @@ def comparison(baseline: Mapping[str, Evaluation], tuned: Mapping[str, Evaluatio
     return out
 
 
-def table_markdown(cmp: Mapping[str, dict], metric: str) -> str:
-    lines = [f"Tuned ({metric}) vs manual baseline. Paper: its tuned vs manual configuration, one pair.", "",
-             "| frames | metric | manual | tuned | change | paper's change |", "|---|---|---|---|---|---|"]
+def sources_text(sources: Mapping[str, int]) -> str:
+    """``8 x synthetic (exact ray-cast disparity), 2 x onnx raft.onnx (...)``: what frames were measured against."""
+    return ", ".join(f"{n} x {src}" for src, n in sources.items())
+
+
+def table_markdown(cmp: Mapping[str, dict], metric: str, references: Mapping[str, Mapping[str, int]] | None = None
+                   ) -> str:
+    lines = [f"Tuned ({metric}) vs manual baseline. Paper: its tuned vs manual configuration, one pair.", ""]
+    lines += [f"Reference disparity of the {name} frames: {sources_text(sources)}."
+              for name, sources in (references or {}).items() if sources]
+    if len(lines) > 2:
+        lines.append("")
+    lines += ["| frames | metric | manual | tuned | change | paper's change |", "|---|---|---|---|---|---|"]
     for name, block in cmp.items():
         for m, row in block["metrics"].items():
             paper = f"{PAPER_CHANGE[m]:+.2f}%" if m in PAPER_CHANGE else ""
@@ -180,7 +190,7 @@ def write_report(outdir: str | Path, summary: Mapping[str, Any], config: Mapping
     (out / "summary.json").write_text(json.dumps(_clean(summary), indent=1))
     (out / "config.yaml").write_text(yaml.safe_dump(_clean(config), sort_keys=False))
     if summary.get("comparison"):
-        (out / "table.md").write_text(table_markdown(summary["comparison"], metric))
+        (out / "table.md").write_text(table_markdown(summary["comparison"], metric, summary.get("references")))
     runs = summary["runs"]
     plot_convergence(out / "convergence.png", [r["history"] for r in runs], summary["baseline"]["value"], metric,
                      f"{summary['config']['optimizer']}, {metric} "

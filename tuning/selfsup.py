@@ -89,7 +89,8 @@ def _dssim(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return d.mean(axis=2) if d.ndim == 3 else d
 
 
-def selfsup_terms(left: np.ndarray, right: np.ndarray, disparity: np.ndarray) -> SelfsupTerms:
+def selfsup_terms(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
+                  box: tuple[int, int, int, int] | None = None) -> SelfsupTerms:
     """The reference-free loss and its parts; see :func:`selfsup_loss`."""
     check_pair(left, right)
     h, w = left.shape[:2]
@@ -114,12 +115,16 @@ def selfsup_terms(left: np.ndarray, right: np.ndarray, disparity: np.ndarray) ->
     smooth = _edge_aware_smoothness(il, disp, valid)
     cost = (photo + W_SMOOTH * smooth) / (1.0 + W_SMOOTH)
     cost = np.where(usable, cost, INVALID_COST)
+    if box is not None:
+        # Warping above used the whole right image; only the scored region counts.
+        x0, y0, x1, y1 = box
+        cost, photo, smooth, usable = (a[y0:y1, x0:x1] for a in (cost, photo, smooth, usable))
     n = int(usable.sum())
     return SelfsupTerms(
         loss=float(cost.mean()),
         photo=float(photo[usable].mean()) if n else float("nan"),
         smooth=float(smooth[usable].mean()) if n else float("nan"),
-        usable=n / float(h * w),
+        usable=n / float(usable.size),
     )
 
 
@@ -143,11 +148,14 @@ def _edge_aware_smoothness(img: np.ndarray, disp: np.ndarray, valid: np.ndarray)
     return np.minimum(out, 1.0)
 
 
-def selfsup_loss(left: np.ndarray, right: np.ndarray, disparity: np.ndarray) -> float:
+def selfsup_loss(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
+                 box: tuple[int, int, int, int] | None = None) -> float:
     """Reference-free loss of a left disparity map, in 0..1, lower is better.
 
     ``left``/``right``: rectified uint8 grey (H, W) or BGR (H, W, 3) images.
     ``disparity``: (H, W) float32 disparity in px of the left image, NaN invalid
     (as :meth:`DisparityPipeline.compute` returns). An all-NaN map scores 1.0.
+    ``box``: (x0, y0, x1, y1) to score only that region (the pipeline's ``compute.roi``);
+    the warp still reads the whole right image.
     """
-    return selfsup_terms(left, right, disparity).loss
+    return selfsup_terms(left, right, disparity, box).loss

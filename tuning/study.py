@@ -37,7 +37,8 @@ from .space import describe_space
 from .store import RunStore
 
 #: Bump when the meaning of an evaluation changes: old cached evaluations are then not reused.
-EVAL_VERSION = 1
+#: 2: candidates with a compute.roi are scored inside it (1 counted the unanswered rest as errors).
+EVAL_VERSION = 2
 
 
 class TuneInterrupted(UavDepthError):

@@ -157,3 +157,34 @@ def test_pareto_front():
 def test_bad_study_config_is_clear(kw, match):
     with pytest.raises(ConfigError, match=match):
         StudyConfig(**kw)
+
+
+@pytest.mark.parametrize("metric", ["mse", "ssim", "bad2", "selfsup"])
+def test_a_candidate_with_a_region_is_scored_inside_it(tiny_frames, metric):
+    """The flight parameters compute only compute.roi: the unanswered rest is by design, not an error."""
+    from uav_depth.daemon.disparity import DisparityPipeline
+    from uav_depth.tuning import metrics
+    from uav_depth.tuning.selfsup import selfsup_loss
+
+    roi = (0.25, 0.25, 0.75, 0.75)
+    flight = TINY_BASE.replace(**{"compute.roi": roi})
+    ev = evaluate(flight, tiny_frames, FITNESS[metric], full=True)
+    per_frame = []
+    for f in tiny_frames.frames:
+        h, w = f.left.shape[:2]
+        x0, y0, x1, y1 = flight.compute.roi_pixels(w, h)
+        assert (x0, y0, x1, y1) == (w // 4, h // 4, 3 * w // 4, 3 * h // 4)
+        disp = DisparityPipeline(flight).compute(f.left, f.right)
+        assert np.isnan(disp[:, :x0]).all()          # outside: unanswered
+        if metric == "selfsup":
+            per_frame.append(selfsup_loss(f.left, f.right, disp, box=(x0, y0, x1, y1)))
+            whole = selfsup_loss(f.left, f.right, disp)
+        else:
+            fn = {"mse": metrics.mse, "ssim": metrics.ssim, "bad2": lambda r, e: metrics.bad(r, e, 2.0)}[metric]
+            per_frame.append(fn(f.reference[y0:y1, x0:x1], disp[y0:y1, x0:x1]))
+            whole = fn(f.reference, disp)
+        # scored over the whole frame, the empty border would dominate
+        assert FITNESS[metric].utility(per_frame[-1]) > FITNESS[metric].utility(whole)
+    assert ev.per_frame == pytest.approx(per_frame)
+    if metric != "selfsup":
+        assert ev.metrics["valid"] > 0.8       # the valid fraction is of the region, too

@@ -61,6 +61,7 @@ def test_out_file_loads_in_the_daemons_loader_with_provenance(reference_run, tin
     assert prov["metric"] == "mse" and prov["seed"] == 4 and prov["optimizer"] == "ga"
     assert prov["fitness"] <= prov["baseline_fitness"]
     assert params.sgbm.num_disparities == 48        # untuned keys keep the --base values
+    assert prov["references"] == {"synthetic (exact ray-cast disparity)": 4}   # what it was measured against
 
 
 def test_report_has_summary_table_plots_and_images(reference_run):
@@ -71,6 +72,8 @@ def test_report_has_summary_table_plots_and_images(reference_run):
         summary["comparison"]["train"]["metrics"]["mse"]["manual"]
     table = (rep / "table.md").read_text()
     assert "| train (4) | mse |" in table and "-42.86%" in table and "+28.52%" in table
+    assert "Reference disparity of the train frames: 4 x synthetic (exact ray-cast disparity)." in table
+    assert summary["references"] == {"train": {"synthetic (exact ray-cast disparity)": 4}}
     for name in ("convergence.png", "pareto.png", "config.yaml"):
         assert (rep / name).stat().st_size > 0
     assert len(list((rep / "frames").glob("train_*.png"))) == 2

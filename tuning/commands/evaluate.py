@@ -20,19 +20,26 @@ def run(args: argparse.Namespace) -> int:
     from uav_depth.daemon.session import iter_frames
 
     from ..evaluate import evaluate_frames, mean_scores
+    from ..reference.provenance import summarize_references
+    from ..report import sources_text
 
     params = load_params(args.params) if args.params else DEFAULT_PARAMS
-    scores = evaluate_frames(params, iter_frames(args.logdir, require_reference=True))
+    frames = list(iter_frames(args.logdir, require_reference=True))
+    scores = evaluate_frames(params, frames)
     if not scores:
         raise FileFormatError(f"{args.logdir}: no frame with a reference disparity (*_ref.npy/.pfm/.png)")
     mean = mean_scores(scores)
+    references = summarize_references(frames)
+    region = "whole frame" if params.compute.roi == (0.0, 0.0, 1.0, 1.0) else f"compute.roi {list(params.compute.roi)}"
     if args.json:
         clean = lambda v: None if isinstance(v, float) and not math.isfinite(v) else v  # noqa: E731
-        doc = {"params_hash": params.hash(),
+        doc = {"params_hash": params.hash(), "scored": region, "references": references,
                "frames": [{k: clean(v) for k, v in s.as_dict().items()} for s in scores],
                "mean": {k: clean(v) for k, v in mean.items()}}
-        print(json.dumps(doc))
+        print(json.dumps(doc, default=str))
         return 0
+    print(f"scored: {region}; measured against: "
+          + sources_text({src["description"]: src["frames"] for src in references["sources"]}))
     print(f"{'frame':<28}{'mse':>9}{'psnr':>8}{'ssim':>7}{'bad1%':>8}{'bad2%':>8}{'valid':>7}{'ms':>7}")
     for s in scores:
         print(f"{s.id:<28}{s.mse:9.2f}{s.psnr:8.2f}{s.ssim:7.3f}{s.bad1:8.2f}{s.bad2:8.2f}{s.valid:7.3f}{s.ms:7.0f}")

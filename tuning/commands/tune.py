@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     from ..executor import make_executor
     from ..frames import load_split
     from ..objective import FITNESS
-    from ..report import comparison, write_report
+    from ..report import comparison, sources_text, write_report
     from ..space import describe_space, parse_keys
     from ..store import RunStore
     from ..study import (Study, StudyConfig, TuneInterrupted, choose_under_budget, full_scores, result_summary,
@@ -143,12 +143,16 @@ def run(args: argparse.Namespace) -> int:
     summary.update(comparison=cmp, budget=budget or {"max_ms": None, "front": front},
                    chosen={"value": chosen_value, "params": chosen.to_dict()},
                    frames={n: framesets[n].keys for n in names}, store=store.path,
+                   references={n: framesets[n].reference_sources() for n in names},
                    evaluations_per_s=result.evaluated / result.wall_s if result.wall_s > 0 else None)
     held = cmp.get("holdout", {}).get("metrics", {}).get(args.metric, {})
     print(f"{args.optimizer} on {len(train)} train frame(s): {args.metric} manual {result.baseline.value:.4g} -> "
           f"tuned {chosen_value:.4g}"
           + (f"; held-out ({len(holdout)}): {held['manual']:.4g} -> {held['tuned']:.4g}" if held else "")
           + f"  [{result.evaluated} evaluated, {result.cached} cached, {result.wall_s:.0f} s]")
+    if "reference" in fitness.needs:
+        print("measured against: " + "; ".join(f"{name}: {sources_text(sources)}"
+                                               for name, sources in summary["references"].items() if sources))
     if budget and budget["reason"]:
         print(f"uav-depth tune: error: --max-ms: {budget['reason']}", file=sys.stderr)
     elif fitness.utility(chosen_value) < fitness.utility(result.baseline.value):
@@ -164,7 +168,8 @@ def run(args: argparse.Namespace) -> int:
             "frames": len(train), "frames_digest": study.digest, "holdout": args.holdout,
             "seed": args.seed, "optimizer": args.optimizer, "population": args.population,
             "generations": args.generations, "runs": args.runs, "best_run": result.best.run,
-            "max_ms": args.max_ms, "store": os.path.abspath(store.path)}
+            "max_ms": args.max_ms, "store": os.path.abspath(store.path),
+            "references": summary["references"]["train"] if "reference" in fitness.needs else None}
         save_params(chosen, args.out, provenance)
         print(f"wrote {args.out}")
     if args.report:

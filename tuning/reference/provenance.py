@@ -43,7 +43,7 @@ NO_REFERENCE = "none"
 UNKNOWN = "unknown"
 #: Keys that identify one source of references (frames sharing them came from the same place).
 _SOURCE_KEYS = {"import": ("format", "scale"), "onnx": ("model", "model_sha256", "provider"),
-                "device": ("device",), "synthetic": ()}
+                "device": ("device",), "synthetic": (), UNKNOWN: (), NO_REFERENCE: ()}
 
 
 def sha256_file(path: str | os.PathLike[str], chunk: int = 1 << 20) -> str:
@@ -107,6 +107,13 @@ def describe(prov: Mapping[str, Any]) -> str:
     return f"{kind} {prov.get('note', '')}".strip()
 
 
+def describe_source(prov: Mapping[str, Any]) -> str:
+    """:func:`describe` without what is particular to one frame (which file is missing): one line per source."""
+    if prov.get("kind", UNKNOWN) == UNKNOWN:
+        return "unknown (no readable provenance recorded)"
+    return describe(prov)
+
+
 def summarize_references(frames: Iterable[FrameRecord]) -> dict[str, Any]:
     """What a set of frames is measured against, for reports.
 
@@ -125,7 +132,7 @@ def summarize_references(frames: Iterable[FrameRecord]) -> dict[str, Any]:
         keys = _SOURCE_KEYS.get(kind, ("note",))
         ident = (kind, *(json.dumps(prov.get(k), sort_keys=True, default=str) for k in keys))
         entry = sources.setdefault(ident, {"kind": kind, **{k: prov.get(k) for k in keys}, "frames": 0,
-                                           "description": describe(prov)})
+                                           "description": describe_source(prov)})
         entry["frames"] += 1
     return {"frames": n, "by_kind": dict(by_kind), "sources": list(sources.values())}
 
