@@ -9,7 +9,7 @@ import pytest
 from uav_depth.daemon.calibration import Calibration
 from uav_depth.daemon.config import LoggingConfig
 from uav_depth.daemon.framelog import FrameLogger, tree_size
-from uav_depth.daemon.session import Session, find_sessions, iter_frames
+from uav_depth.daemon.session import find_sessions, iter_frames
 
 CALIB = Calibration(focal_px=200.0, baseline_m=0.063, width=64, height=48)
 

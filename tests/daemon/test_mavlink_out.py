@@ -1,6 +1,5 @@
 """MAVLink output against real pymavlink endpoints on loopback: fields, clock, subscriptions, signing, reconnects."""
 
-import os
 import socket
 import threading
 import time
@@ -13,15 +12,9 @@ from uav_depth.daemon.mavlink_out import (MavlinkLink, SendClock, distance_repor
                                           orientation_code)
 from uav_depth.daemon.ranging import Estimate, Measurement, RangeLimits
 
+from mavlink_peer import free_port
+
 LIMITS = RangeLimits(min_distance_m=0.345, max_distance_m=10.0, hfov_rad=0.6, vfov_rad=0.35)
-
-
-def free_port(kind=socket.SOCK_DGRAM):
-    s = socket.socket(socket.AF_INET, kind)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
 
 
 def estimate(distance=1.234, sigma=0.01, quality=80, t_capture=10.0, limits=LIMITS):

@@ -20,50 +20,14 @@ import pytest
 import yaml
 
 from uav_depth.daemon.cli import EXIT_CONFIG, EXIT_UNAVAILABLE
-from uav_depth.daemon.mavlink_out import mavutil
 from uav_depth.daemon.params import DEFAULT_PARAMS, atomic_write_text, save_params
 from uav_depth.daemon.scene import Pose, Scene, SceneConfig
+
+from mavlink_peer import free_port
 
 RATE_HZ = 20.0
 SHUTDOWN_S = 3.0
 PARAMS_64 = DEFAULT_PARAMS.replace(**{"sgbm.num_disparities": 64})
-
-
-def free_port():
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
-
-
-class Receiver:
-    """The flight controller's side: a real udpin endpoint recording (arrival time, message)."""
-
-    def __init__(self):
-        self.port = free_port()
-        self.conn = mavutil().mavlink_connection(f"udpin:127.0.0.1:{self.port}", source_system=255)
-        self.msgs = []
-        self._stop = threading.Event()
-        self._t = threading.Thread(target=self._loop, daemon=True)
-        self._t.start()
-
-    def _loop(self):
-        while not self._stop.is_set():
-            m = self.conn.recv_match(blocking=True, timeout=0.05)
-            if m is not None and m.get_type() != "BAD_DATA":
-                self.msgs.append((time.monotonic(), m))
-
-    def timed(self, mtype, since=0.0):
-        return [(t, m) for t, m in self.msgs if m.get_type() == mtype and t >= since]
-
-    def texts(self):
-        return [m.text for _, m in self.timed("STATUSTEXT")]
-
-    def close(self):
-        self._stop.set()
-        self._t.join(1)
-        self.conn.close()
 
 
 class NotifySocket:
@@ -148,13 +112,6 @@ def base_config(rx, scene, params_file, **extra):
 def truth_of(scene, pose=None):
     cfg = SceneConfig(**scene)
     return Scene(cfg).render(pose).nearest_branch_distance(cfg.center_roi)
-
-
-@pytest.fixture
-def rx():
-    r = Receiver()
-    yield r
-    r.close()
 
 
 @pytest.fixture

@@ -1,6 +1,5 @@
 """The service in-process, against a real pymavlink endpoint: staleness, camera loss, hot reload, start-up failures."""
 
-import socket
 import threading
 import time
 
@@ -8,59 +7,14 @@ import pytest
 
 from uav_depth.daemon.config import run_config_from_dict
 from uav_depth.daemon.errors import ConfigError, SourceError
-from uav_depth.daemon.mavlink_out import mavutil
 from uav_depth.daemon.params import DEFAULT_PARAMS, atomic_write_text, save_params
 from uav_depth.daemon.scene import Pose
 from uav_depth.daemon.service import Service, check_roi_against_compute
 
+
 SCENE = {"width": 320, "height": 240, "focal_px": 200.0, "branch_distance_m": 0.8, "branch_radius_m": 0.04,
          "seed": 1}
 PARAMS_64 = DEFAULT_PARAMS.replace(**{"sgbm.num_disparities": 64})
-
-
-def free_port():
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
-
-
-class Receiver:
-    """A real udpin endpoint recording (arrival time, message) on a thread."""
-
-    def __init__(self):
-        self.port = free_port()
-        self.conn = mavutil().mavlink_connection(f"udpin:127.0.0.1:{self.port}", source_system=255)
-        self.msgs = []
-        self._stop = threading.Event()
-        self._t = threading.Thread(target=self._loop, daemon=True)
-        self._t.start()
-
-    def _loop(self):
-        while not self._stop.is_set():
-            m = self.conn.recv_match(blocking=True, timeout=0.05)
-            if m is not None and m.get_type() != "BAD_DATA":
-                self.msgs.append((time.monotonic(), m))
-
-    def of(self, mtype, since=0.0):
-        return [m for t, m in self.msgs if m.get_type() == mtype and t >= since]
-
-    def texts(self):
-        return [m.text for m in self.of("STATUSTEXT")]
-
-    def wait(self, pred, timeout=10.0):
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if pred():
-                return True
-            time.sleep(0.02)
-        return False
-
-    def close(self):
-        self._stop.set()
-        self._t.join(1)
-        self.conn.close()
 
 
 def config(rx, **sections):
@@ -96,13 +50,6 @@ class Running:
         self.stop.set()
         self.thread.join(10)
         assert not self.thread.is_alive()
-
-
-@pytest.fixture
-def rx():
-    r = Receiver()
-    yield r
-    r.close()
 
 
 @pytest.fixture

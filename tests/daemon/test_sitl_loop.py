@@ -11,7 +11,6 @@ camera to the branch's nearest surface is tree_north - north.
 from __future__ import annotations
 
 import csv
-import math
 import os
 import signal
 import socket
