@@ -16,7 +16,6 @@ path, the rule and the value, and where the value came from.
 from __future__ import annotations
 
 import logging
-import math
 import os
 import re
 from dataclasses import dataclass, field, fields
@@ -27,6 +26,7 @@ import yaml
 
 from .calibration import Calibration, calibration_from_dict, load_calibration
 from .errors import ConfigError, FileFormatError
+from .validate import fmt, in_range, number
 
 log = logging.getLogger("uav_depth.config")
 
@@ -68,9 +68,9 @@ class Key:
         elif self.kind == "roi":
             text = "[x0, y0, x1, y1] px"
         elif self.lo is not None and self.hi is not None:
-            text = f"{_fmt(self.lo)}..{_fmt(self.hi)}" + (" (exclusive)" if self.hi_open else "")
+            text = f"{fmt(self.lo)}..{fmt(self.hi)}" + (" (exclusive)" if self.hi_open else "")
         elif self.lo is not None:
-            text = f">= {_fmt(self.lo)}"
+            text = f">= {fmt(self.lo)}"
         else:
             text = self.kind
         return text + (", or null" if self.optional else "")
@@ -86,25 +86,8 @@ class Key:
             if not isinstance(value, bool):
                 raise ConfigError(key, "must be true or false", value, source)
         elif kind in ("int", "float"):
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ConfigError(key, f"must be a number ({kind})", value, source)
-            if kind == "int":
-                if isinstance(value, float) and not value.is_integer():
-                    raise ConfigError(key, "must be an integer", value, source)
-                value = int(value)
-            else:
-                value = float(value)
-                if not math.isfinite(value):
-                    raise ConfigError(key, "must be a finite number", value, source)
-            lo, hi = self.lo, self.hi
-            if lo is not None and hi is not None:
-                ok = lo <= value < hi if self.hi_open else lo <= value <= hi
-                if not ok:
-                    rule = (f"must be at least {_fmt(lo)} and below {_fmt(hi)}" if self.hi_open
-                            else f"must be between {_fmt(lo)} and {_fmt(hi)}")
-                    raise ConfigError(key, rule, value, source)
-            elif lo is not None and value < lo:
-                raise ConfigError(key, f"must be at least {_fmt(lo)}", value, source)
+            value = number(key, value, kind == "int", source)
+            in_range(key, value, self.lo, self.hi, source, self.hi_open)
         elif kind in ("str", "path"):
             if not isinstance(value, str) or not value:
                 raise ConfigError(key, "must be a non-empty string", value, source)
@@ -125,10 +108,6 @@ class Key:
             if problem:
                 raise ConfigError(key, problem, value, source)
         return value
-
-
-def _fmt(x: float) -> str:
-    return str(int(x)) if float(x).is_integer() else str(x)
 
 
 def section_values(keys: tuple[Key, ...], data: Any, section: str, source: str | None,

@@ -24,6 +24,7 @@ from typing import Any, Mapping
 import yaml
 
 from .errors import ConfigError, FileFormatError
+from .validate import fmt, in_range, number
 
 #: OpenCV's SGBM stores P1, P2 and path costs in 16-bit signed integers (CostType
 #: is short). A penalty above this wraps around and the matcher returns garbage.
@@ -76,18 +77,8 @@ class Spec:
             if value not in self.choices:
                 raise ConfigError(key, f"must be one of {', '.join(self.choices)}", value, source)
             return value
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(key, f"must be a number ({self.kind.__name__})", value, source)
-        if self.kind is int:
-            if isinstance(value, float) and not value.is_integer():
-                raise ConfigError(key, "must be an integer", value, source)
-            value = int(value)
-        else:
-            value = float(value)
-            if not math.isfinite(value):
-                raise ConfigError(key, "must be a finite number", value, source)
-        if self.lo is not None and self.hi is not None and not (self.lo <= value <= self.hi):
-            raise ConfigError(key, f"must be between {_fmt(self.lo)} and {_fmt(self.hi)}", value, source)
+        value = number(key, value, self.kind is int, source)
+        in_range(key, value, self.lo, self.hi, source)
         if self.rule == "odd" and value % 2 != 1:
             raise ConfigError(key, "must be odd", value, source)
         if self.rule == "multiple_of_16" and value % 16 != 0:
@@ -105,15 +96,11 @@ class Spec:
             raise ConfigError(key, "must be a list of 4 numbers [left, top, right, bottom]", value, source)
         box = tuple(float(v) for v in value)
         if not all(math.isfinite(v) and self.lo <= v <= self.hi for v in box):
-            raise ConfigError(key, f"must have every number between {_fmt(self.lo)} and {_fmt(self.hi)}",
+            raise ConfigError(key, f"must have every number between {fmt(self.lo)} and {fmt(self.hi)}",
                               list(value), source)
         if not (box[0] < box[2] and box[1] < box[3]):
             raise ConfigError(key, "must have left < right and top < bottom", list(value), source)
         return box
-
-
-def _fmt(x: float) -> str:
-    return str(int(x)) if float(x).is_integer() else str(x)
 
 
 SPECS: tuple[Spec, ...] = (
@@ -408,11 +395,11 @@ def params_table_markdown() -> str:
         if s.choices:
             acc = " / ".join(s.choices)
         elif s.kind is tuple:
-            acc = f"4 numbers {_fmt(s.lo)}..{_fmt(s.hi)}, left < right, top < bottom"
+            acc = f"4 numbers {fmt(s.lo)}..{fmt(s.hi)}, left < right, top < bottom"
         elif s.kind is bool:
             acc = "true / false"
         else:
-            acc = f"{_fmt(s.lo)}..{_fmt(s.hi)}" + (f", {s.rule.replace('_', ' ')}" if s.rule else "")
+            acc = f"{fmt(s.lo)}..{fmt(s.hi)}" + (f", {s.rule.replace('_', ' ')}" if s.rule else "")
         default = list(s.default) if isinstance(s.default, tuple) else s.default
         rows.append(f"| `{s.key}` | {default} | {acc} | {s.paper or ''} | {s.paper_range or ''} | {s.doc} |")
     return "\n".join(rows)
