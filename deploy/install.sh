@@ -17,7 +17,7 @@ umask 022
 here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 src_default=$(dirname "$here")
 prog=install.sh
-EX_USAGE=64 EX_NOPERM=77
+. "$(dirname "${BASH_SOURCE[0]}")/common.sh"
 
 usage() {
     cat <<EOF
@@ -59,26 +59,15 @@ case "$camera" in
     zed-mini|oak-d|sitl) ;;
     *) echo "$prog: --camera must be one of zed-mini, oak-d, sitl, but got '$camera'" >&2; exit $EX_USAGE ;;
 esac
-if [ -n "$root" ]; then
-    [ -d "$root" ] || { echo "$prog: --root must be an existing directory, but got '$root'" >&2; exit $EX_USAGE; }
-    root=$(cd "$root" && pwd)
-    [ "$root" != / ] || root=""
-fi
-is_root=0
-if [ "$(id -u)" -eq 0 ]; then is_root=1; fi
-if [ $is_root -eq 0 ] && [ -z "$root" ] && [ $dry -eq 0 ]; then
-    echo "$prog: must run as root to install into / (try sudo), or use --dry-run or --root DIR" >&2
-    exit $EX_NOPERM
-fi
+resolve_root
+require_root "install into /"
 if [ -z "$from" ]; then
     from=$src_default
     if [ "$camera" = oak-d ]; then from="$src_default[oak]"; fi
 fi
 
 venv=/opt/uav-depth/venv
-say() { printf '%s\n' "$*"; }
 # Run a command, or only print it under --dry-run.
-act() { if [ $dry -eq 1 ]; then printf '+ %s\n' "$*"; else "$@"; fi; }
 
 # Ownership: names on /, numeric ids read from the root's own databases under --root (the
 # host's uav-depth, if any, is not the image's). Without root privileges ownership is left alone.

@@ -5,7 +5,7 @@
 set -euo pipefail
 
 prog=uninstall.sh
-EX_USAGE=64 EX_NOPERM=77
+. "$(dirname "${BASH_SOURCE[0]}")/common.sh"
 
 usage() {
     cat <<EOF
@@ -28,20 +28,9 @@ while [ $# -gt 0 ]; do
         *) echo "$prog: unknown argument '$1' (see --help)" >&2; exit $EX_USAGE ;;
     esac
 done
-if [ -n "$root" ]; then
-    [ -d "$root" ] || { echo "$prog: --root must be an existing directory, but got '$root'" >&2; exit $EX_USAGE; }
-    root=$(cd "$root" && pwd)
-    [ "$root" != / ] || root=""
-fi
-is_root=0
-if [ "$(id -u)" -eq 0 ]; then is_root=1; fi
-if [ $is_root -eq 0 ] && [ -z "$root" ] && [ $dry -eq 0 ]; then
-    echo "$prog: must run as root to remove from / (try sudo), or use --dry-run or --root DIR" >&2
-    exit $EX_NOPERM
-fi
+resolve_root
+require_root "remove from /"
 
-say() { printf '%s\n' "$*"; }
-act() { if [ $dry -eq 1 ]; then printf '+ %s\n' "$*"; else "$@"; fi; }
 remove() {  # remove PATH...: only what exists, so a second run is a no-op
     local p
     for p in "$@"; do
