@@ -27,8 +27,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
-import platform
 import socket
 import threading
 import time
@@ -36,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from uav_depth.daemon.benchmark import machine_line
 from uav_depth.daemon.config import RangingConfig, run_config_from_dict
 from uav_depth.daemon.disparity import DisparityPipeline
 from uav_depth.daemon.mavlink_out import mavutil
@@ -46,18 +45,6 @@ from uav_depth.daemon.service import Service
 
 ROOT = Path(__file__).resolve().parents[1]
 DISTANCES = (0.5, 1.0, 1.5, 2.0)
-
-
-def machine() -> str:
-    model = "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{os.cpu_count()} cores, {model}, {platform.system()} {platform.release()}, Python {platform.python_version()}"
 
 
 def param_sets(names):
@@ -157,7 +144,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=5, help="scenes per distance")
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
-    print(f"machine: {machine()}")
+    print(machine_line())
     sets = param_sets(args.params)
     if args.part in ("loop", "both"):
         import tempfile

@@ -24,29 +24,12 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import platform
 import time
 
 import cv2
 import numpy as np
 
-
-def machine() -> str:
-    model = platform.processor() or "?"
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        usable = len(os.sched_getaffinity(0))
-    except AttributeError:
-        usable = os.cpu_count()
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
-    return (f"machine: {os.cpu_count()} cores ({usable} usable), {model}; load average {load:.1f}; "
-            f"OpenCV {cv2.__version__}, numpy {np.__version__}")
+from uav_depth.daemon.benchmark import machine_line
 
 
 def motorcycle():
@@ -157,7 +140,7 @@ def main() -> int:
                          generations=args.generations, seed=args.seed)
     frames = motorcycle()
     workers = args.workers or sorted({1, os.cpu_count() or 1})
-    print(machine())
+    print(machine_line())
     print(f"study: {args.optimizer}, {args.metric}, population {args.population} x {args.generations} generations "
           f"= {config.budget} proposals, seed {args.seed}, motorcycle 741x500")
     print(f"{'variant':<14}{'wall s':>8}{'start s':>9}{'evaluated':>11}{'evals/s':>9}{'proposals/s':>13}"

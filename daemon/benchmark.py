@@ -125,6 +125,14 @@ def machine() -> dict[str, Any]:
             "platform": platform.platform()}
 
 
+def machine_line(m: dict[str, Any] | None = None) -> str:
+    """:func:`machine` as one line for printed figures, with the load average (figures here are noisy)."""
+    m = m or machine()
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    return (f"machine: {m['cores']} cores ({m['cores_usable']} usable), {m['cpu']}; load average {load:.1f}; "
+            f"Python {m['python']}, OpenCV {m['opencv']} ({m['opencv_threads']} threads), numpy {m['numpy']}")
+
+
 #: Smallest image period of the background texture the benchmark allows, as a fraction of the
 #: image width (200 px at 1280): beyond the widest search any variant uses (160 px for 0.3 m).
 MIN_BACKGROUND_PERIOD = 200 / 1280

@@ -40,58 +40,56 @@ def overrides_from_args(args: argparse.Namespace) -> dict:
     return out
 
 
-def run(args: argparse.Namespace) -> int:
+def setup_logging(level: str) -> None:
+    """Plain lines for journald (it adds time and unit); no colours, no timestamps."""
+    import logging
+    import sys
+
+    logging.basicConfig(level=getattr(logging, level.upper()), stream=sys.stderr,
+                        format="%(levelname)s %(name)s: %(message)s")
+
+
+def error_line(command: str):
+    """The one line a start-up or run failure prints: ``uav-depth run: error: ...``."""
+    import sys
+
+    return lambda exc: print(f"uav-depth {command}: error: {exc}", file=sys.stderr, flush=True)
+
+
+def serve(service, stop, command: str, cleanup=None) -> int:
+    """Run ``service`` until ``stop`` is set (SIGTERM, SIGINT); SIGUSR1 logs a frame, SIGHUP reloads.
+
+    Maps what stops it to the exit codes above; ``cleanup`` runs whatever happens.
+    The handlers only set events; the service's threads and main loop do the work.
+    """
     import logging
     import os
     import signal
     import sys
-    import threading
 
     from uav_depth.daemon.cli import EXIT_CONFIG, EXIT_ERROR, EXIT_UNAVAILABLE
-    from uav_depth.daemon.config import load_run_config
     from uav_depth.daemon.errors import (CalibrationError, ConfigError, DependencyError, FileFormatError,
                                          SourceError, UavDepthError)
 
-    # Plain lines for journald (it adds time and unit); no colours, no timestamps.
-    logging.basicConfig(level=getattr(logging, args.log_level.upper()), stream=sys.stderr,
-                        format="%(levelname)s %(name)s: %(message)s")
-    err = lambda exc: print(f"uav-depth run: error: {exc}", file=sys.stderr, flush=True)  # noqa: E731
-    try:
-        config = load_run_config(args.config, overrides_from_args(args))
-    except (ConfigError, CalibrationError, FileFormatError) as exc:
-        err(exc)
-        return EXIT_CONFIG
-    if args.check:
-        print(f"config valid: {config.summary()}")
-        return 0
-
-    from uav_depth.daemon.service import Service
-
-    stop = threading.Event()
-    try:
-        service = Service(config)
-    except (ConfigError, CalibrationError, FileFormatError) as exc:
-        err(exc)
-        return EXIT_CONFIG
-    # Handlers only set events; the service's threads and main loop do the work.
+    err = error_line(command)
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGUSR1, lambda *_: service.request_log_frame())
     signal.signal(signal.SIGHUP, lambda *_: service.request_reload())
     try:
         report = service.run(stop)
-    except (ConfigError, CalibrationError, FileFormatError) as exc:
+    except (ConfigError, CalibrationError, FileFormatError, DependencyError) as exc:
         err(exc)
         return EXIT_CONFIG
     except SourceError as exc:
         err(exc)
         return EXIT_UNAVAILABLE
-    except DependencyError as exc:
-        err(exc)
-        return EXIT_CONFIG
     except UavDepthError as exc:
         err(exc)
         return EXIT_ERROR
+    finally:
+        if cleanup is not None:
+            cleanup()
     if service.ended:
         logging.getLogger("uav_depth.service").info("source ended: %s", service.ended)
     if report.abandoned:
@@ -103,3 +101,31 @@ def run(args: argparse.Namespace) -> int:
         sys.stderr.flush()
         os._exit(0)
     return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    import threading
+
+    from uav_depth.daemon.cli import EXIT_CONFIG
+    from uav_depth.daemon.config import load_run_config
+    from uav_depth.daemon.errors import CalibrationError, ConfigError, FileFormatError
+
+    setup_logging(args.log_level)
+    err = error_line("run")
+    try:
+        config = load_run_config(args.config, overrides_from_args(args))
+    except (ConfigError, CalibrationError, FileFormatError) as exc:
+        err(exc)
+        return EXIT_CONFIG
+    if args.check:
+        print(f"config valid: {config.summary()}")
+        return 0
+
+    from uav_depth.daemon.service import Service
+
+    try:
+        service = Service(config)
+    except (ConfigError, CalibrationError, FileFormatError) as exc:
+        err(exc)
+        return EXIT_CONFIG
+    return serve(service, threading.Event(), "run")

@@ -47,23 +47,21 @@ def configure(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import logging
     import signal
-    import sys
     import threading
     import time
     from pathlib import Path
 
-    from uav_depth.daemon.cli import EXIT_CONFIG, EXIT_UNAVAILABLE
+    from uav_depth.daemon.cli import EXIT_CONFIG
     from uav_depth.daemon.config import load_run_config
-    from uav_depth.daemon.errors import CalibrationError, ConfigError, FileFormatError, SourceError
+    from uav_depth.daemon.errors import CalibrationError, ConfigError, FileFormatError
     from uav_depth.daemon.mavlink_out import MavlinkLink
     from uav_depth.daemon.service import Service
     from uav_depth.daemon.sitl import MSG_ATTITUDE, MSG_LOCAL_POSITION_NED, PoseRecorder, PoseTracker, \
         SitlConfig, TruthLog
 
-    logging.basicConfig(level=getattr(logging, args.log_level.upper()), stream=sys.stderr,
-                        format="%(levelname)s %(name)s: %(message)s")
+    run_command.setup_logging(args.log_level)
     log = logging.getLogger("uav_depth.sitl")
-    err = lambda exc: print(f"uav-depth sitl: error: {exc}", file=sys.stderr, flush=True)  # noqa: E731
+    err = run_command.error_line("sitl")
     try:
         config = load_run_config(args.config, run_command.overrides_from_args(args))
         if config.source_kind != "synthetic":
@@ -117,24 +115,16 @@ def run(args: argparse.Namespace) -> int:
         link.close()
         err(exc)
         return EXIT_CONFIG
-    signal.signal(signal.SIGUSR1, lambda *_: service.request_log_frame())
-    signal.signal(signal.SIGHUP, lambda *_: service.request_reload())
     path = Path(args.truth_log) if args.truth_log else \
         Path(config.logging.dir or ".") / time.strftime("sitl-%Y%m%d-%H%M%S.csv")
     truth = TruthLog(path, service, recorder, tree_ned=tracker.tree_ned() if recorder else None)
     truth.start()
-    try:
-        service.run(stop)
-    except (ConfigError, CalibrationError, FileFormatError) as exc:
-        err(exc)
-        return EXIT_CONFIG
-    except SourceError as exc:
-        err(exc)
-        return EXIT_UNAVAILABLE
-    finally:
+
+    def close_truth() -> None:
         truth.close()
-    log.info("truth log %s: %s", path, truth.summary())
-    return 0
+        log.info("truth log %s: %s", path, truth.summary())
+
+    return run_command.serve(service, stop, "sitl", cleanup=close_truth)
 
 
 def sitl_heading_deg(tracker) -> float:
