@@ -12,14 +12,13 @@ Two parts, each for the manual baseline parameters and for deploy/params-flight.
    at 0.5, 1, 1.5 and 2 m (``--seeds`` scenes each, default imaging conditions, and
    the same with varied conditions: brightness, contrast, noise, blur, texture,
    radius), through the daemon's own pipeline and ranging. "Gross" errors (over
-   10 %) are counted apart: on varied scenes they come from the synthetic
-   background texture, which repeats every f * 3 m / (Z_bg * texture_scale) px, about
-   145 px for a background at 13 m, inside the disparity search range, so SGBM
-   matches the wrong period with full confidence and ranging sees a near object.
+   10 %) are counted apart (none since the renderer lays its background tile at an
+   irrational angle: a repeat inside the search range made SGBM match the wrong period
+   with full confidence, and ranging saw a near object).
 
 Run from the repository root:
 
-    .venv/bin/python bench/daemon_ranging.py                 # both parts, about 3 minutes
+    .venv/bin/python bench/daemon_ranging.py                 # both parts, about 4 minutes
     .venv/bin/python bench/daemon_ranging.py --part ranging --seeds 10
 """
 
