@@ -102,7 +102,7 @@ def main() -> int:
                     row = cmp[n]["metrics"].get(m)
                     if row:
                         paper = f" [paper {PAPER_CHANGE[m]:+.2f}%]" if m in PAPER_CHANGE else ""
-                        cells.append(f"{m} {row['manual']:.4g}->{row['tuned']:.4g} ({row['change_pct']:+.1f}%){paper}")
+                        cells.append(f"{m} {row['base']:.4g}->{row['tuned']:.4g} ({row['change_pct']:+.1f}%){paper}")
                 print(f"  {n:<8}" + "; ".join(cells))
                 if len(run_params) > 1:
                     ch = [r[args.metric]["change_pct"] for r in per_run[n] if args.metric in r]

@@ -5,12 +5,12 @@ Files written into the report directory:
 - ``summary.json``: configuration, per-run results and histories, baseline vs
   tuned metrics on train and held-out frames, the Pareto front, timings;
 - ``table.md``: the change of MSE, PSNR, SSIM, bad-2 (and branch error when
-  known) of the tuned parameters against the manual baseline, train and
+  known) of the tuned parameters against the base (``--base``, by default the manual baseline), train and
   held-out, next to the paper's reported change;
 - ``convergence.png``: best fitness so far per generation, mean +- std over runs
   (the paper's figure), with the baseline as a line;
 - ``pareto.png``: fitness against frame time for every evaluated candidate;
-- ``frames/*.png``: reference | manual | tuned disparity side by side;
+- ``frames/*.png``: reference | base | tuned disparity side by side;
 - ``config.yaml``: the resolved configuration of the run.
 """
 
@@ -44,17 +44,19 @@ def change_pct(base: float, tuned: float) -> float:
 
 
 def comparison(baseline: Mapping[str, Evaluation], tuned: Mapping[str, Evaluation]) -> dict[str, dict]:
-    """{set: {metric: {"manual", "tuned", "change_pct"}}} from full evaluations per frame set."""
+    """{set: {metric: {"base", "tuned", "change_pct"}}} from full evaluations per frame set.
+
+    The base is what the search started from (``--base``, by default the manual baseline)."""
     out: dict[str, dict] = {}
     for name in baseline:
         b, t = baseline[name], tuned[name]
         rows = {}
         for m in TABLE_METRICS:
             if m in b.metrics and m in t.metrics:
-                rows[m] = {"manual": b.metrics[m], "tuned": t.metrics[m],
+                rows[m] = {"base": b.metrics[m], "tuned": t.metrics[m],
                            "change_pct": change_pct(b.metrics[m], t.metrics[m])}
-        rows["ms"] = {"manual": b.ms, "tuned": t.ms, "change_pct": change_pct(b.ms, t.ms)}
-        out[name] = {"frames": len(b.per_frame), "status": {"manual": b.status, "tuned": t.status},
+        rows["ms"] = {"base": b.ms, "tuned": t.ms, "change_pct": change_pct(b.ms, t.ms)}
+        out[name] = {"frames": len(b.per_frame), "status": {"base": b.status, "tuned": t.status},
                      "metrics": rows}
     return out
 
@@ -64,18 +66,23 @@ def sources_text(sources: Mapping[str, int]) -> str:
     return ", ".join(f"{n} x {src}" for src, n in sources.items())
 
 
-def table_markdown(cmp: Mapping[str, dict], metric: str, references: Mapping[str, Mapping[str, int]] | None = None
-                   ) -> str:
-    lines = [f"Tuned ({metric}) vs manual baseline. Paper: its tuned vs manual configuration, one pair.", ""]
+#: How reports name the default base.
+MANUAL_BASELINE = "the manual baseline (OpenCV's sample values)"
+
+
+def table_markdown(cmp: Mapping[str, dict], metric: str, references: Mapping[str, Mapping[str, int]] | None = None,
+                   base: str = MANUAL_BASELINE) -> str:
+    lines = [f"Tuned ({metric}) vs the base it started from: {base}. "
+             "Paper: its tuned vs manual configuration, one pair.", ""]
     lines += [f"Reference disparity of the {name} frames: {sources_text(sources)}."
               for name, sources in (references or {}).items() if sources]
     if len(lines) > 2:
         lines.append("")
-    lines += ["| frames | metric | manual | tuned | change | paper's change |", "|---|---|---|---|---|---|"]
+    lines += ["| frames | metric | base | tuned | change | paper's change |", "|---|---|---|---|---|---|"]
     for name, block in cmp.items():
         for m, row in block["metrics"].items():
             paper = f"{PAPER_CHANGE[m]:+.2f}%" if m in PAPER_CHANGE else ""
-            lines.append(f"| {name} ({block['frames']}) | {m} | {_f(row['manual'])} | {_f(row['tuned'])} | "
+            lines.append(f"| {name} ({block['frames']}) | {m} | {_f(row['base'])} | {_f(row['tuned'])} | "
                          f"{_pct(row['change_pct'])} | {paper} |")
     return "\n".join(lines) + "\n"
 
@@ -123,7 +130,7 @@ def plot_convergence(path: Path, histories: Sequence[Sequence[float]], baseline:
     if h.shape[0] > 1:
         ax.fill_between(gens, mean - std, mean + std, alpha=0.3, label="+- std")
     if math.isfinite(baseline):
-        ax.axhline(baseline, color="k", ls="--", lw=1, label="manual baseline")
+        ax.axhline(baseline, color="k", ls="--", lw=1, label="base")
     ax.set_xlabel("generation")
     ax.set_ylabel(metric)
     ax.set_title(title)
@@ -164,24 +171,24 @@ def plot_pareto(path: Path, points: Sequence[tuple[float, float]], front: Sequen
     plt.close(fig)
 
 
-def side_by_side(path: Path, frame, manual: StereoParams, tuned: StereoParams) -> None:
-    """reference | manual | tuned disparity (one colour scale) as one PNG."""
+def side_by_side(path: Path, frame, base: StereoParams, tuned: StereoParams) -> None:
+    """reference | base | tuned disparity (one colour scale) as one PNG."""
     import cv2
 
-    maps = [DisparityPipeline(p).compute(frame.left, frame.right) for p in (manual, tuned)]
+    maps = [DisparityPipeline(p).compute(frame.left, frame.right) for p in (base, tuned)]
     if frame.reference is not None:
         maps.insert(0, frame.reference)
     finite = [m[np.isfinite(m)] for m in maps]
     top = max((float(f.max()) for f in finite if f.size), default=1.0)
     tiles = [colourise(m, top) for m in maps]
-    labels = (["reference"] if frame.reference is not None else []) + ["manual", "tuned"]
+    labels = (["reference"] if frame.reference is not None else []) + ["base", "tuned"]
     for tile, label in zip(tiles, labels):
         cv2.putText(tile, label, (8, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 255), 2, cv2.LINE_AA)
     cv2.imwrite(str(path), np.hstack(tiles))
 
 
 def write_report(outdir: str | Path, summary: Mapping[str, Any], config: Mapping[str, Any],
-                 framesets: Sequence[FrameSet], manual: StereoParams, tuned: StereoParams,
+                 framesets: Sequence[FrameSet], base: StereoParams, tuned: StereoParams,
                  pareto_points: Sequence[tuple[float, float]], images_per_set: int = 2) -> Path:
     """Write every report file into ``outdir`` (created); returns the directory."""
     out = Path(outdir)
@@ -190,7 +197,8 @@ def write_report(outdir: str | Path, summary: Mapping[str, Any], config: Mapping
     (out / "summary.json").write_text(json.dumps(_clean(summary), indent=1))
     (out / "config.yaml").write_text(yaml.safe_dump(_clean(config), sort_keys=False))
     if summary.get("comparison"):
-        (out / "table.md").write_text(table_markdown(summary["comparison"], metric, summary.get("references")))
+        (out / "table.md").write_text(table_markdown(summary["comparison"], metric, summary.get("references"),
+                                                     summary.get("base", MANUAL_BASELINE)))
     runs = summary["runs"]
     plot_convergence(out / "convergence.png", [r["history"] for r in runs], summary["baseline"]["value"], metric,
                      f"{summary['config']['optimizer']}, {metric} "
@@ -201,5 +209,5 @@ def write_report(outdir: str | Path, summary: Mapping[str, Any], config: Mapping
     for fs in framesets:
         for frame in fs.frames[:images_per_set]:
             name = frame.key.replace("/", "_")
-            side_by_side(out / "frames" / f"{fs.name}_{name}.png", frame, manual, tuned)
+            side_by_side(out / "frames" / f"{fs.name}_{name}.png", frame, base, tuned)
     return out

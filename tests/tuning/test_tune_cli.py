@@ -64,14 +64,15 @@ def test_out_file_loads_in_the_daemons_loader_with_provenance(reference_run, tin
     assert prov["references"] == {"synthetic (exact ray-cast disparity)": 4}   # what it was measured against
 
 
-def test_report_has_summary_table_plots_and_images(reference_run):
+def test_report_has_summary_table_plots_and_images(reference_run, tiny_session):
     rep = reference_run / "rep"
     summary = json.loads((rep / "summary.json").read_text())
     assert summary["config"]["population"] == 8 and len(summary["runs"][0]["history"]) == 12
     assert summary["comparison"]["train"]["metrics"]["mse"]["tuned"] <= \
-        summary["comparison"]["train"]["metrics"]["mse"]["manual"]
+        summary["comparison"]["train"]["metrics"]["mse"]["base"]
     table = (rep / "table.md").read_text()
     assert "| train (4) | mse |" in table and "-42.86%" in table and "+28.52%" in table
+    assert f"vs the base it started from: {tiny_session / 'base.yaml'}." in table    # not "manual": --base given
     assert "Reference disparity of the train frames: 4 x synthetic (exact ray-cast disparity)." in table
     assert summary["references"] == {"train": {"synthetic (exact ray-cast disparity)": 4}}
     for name in ("convergence.png", "pareto.png", "config.yaml"):

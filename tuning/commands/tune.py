@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     from ..executor import make_executor
     from ..frames import load_split
     from ..objective import FITNESS
-    from ..report import comparison, sources_text, write_report
+    from ..report import MANUAL_BASELINE, comparison, sources_text, write_report
     from ..space import describe_space, parse_keys
     from ..store import RunStore
     from ..study import (Study, StudyConfig, TuneInterrupted, choose_under_budget, full_scores, result_summary,
@@ -144,11 +144,12 @@ def run(args: argparse.Namespace) -> int:
                    chosen={"value": chosen_value, "params": chosen.to_dict()},
                    frames={n: framesets[n].keys for n in names}, store=store.path,
                    references={n: framesets[n].reference_sources() for n in names},
+                   base=os.path.abspath(args.base) if args.base else MANUAL_BASELINE,
                    evaluations_per_s=result.evaluated / result.wall_s if result.wall_s > 0 else None)
     held = cmp.get("holdout", {}).get("metrics", {}).get(args.metric, {})
-    print(f"{args.optimizer} on {len(train)} train frame(s): {args.metric} manual {result.baseline.value:.4g} -> "
+    print(f"{args.optimizer} on {len(train)} train frame(s): {args.metric} base {result.baseline.value:.4g} -> "
           f"tuned {chosen_value:.4g}"
-          + (f"; held-out ({len(holdout)}): {held['manual']:.4g} -> {held['tuned']:.4g}" if held else "")
+          + (f"; held-out ({len(holdout)}): {held['base']:.4g} -> {held['tuned']:.4g}" if held else "")
           + f"  [{result.evaluated} evaluated, {result.cached} cached, {result.wall_s:.0f} s]")
     if "reference" in fitness.needs:
         print("measured against: " + "; ".join(f"{name}: {sources_text(sources)}"
