@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from uav_depth.daemon.cli import COMMANDS
 from uav_depth.daemon.errors import EXTRA_OF_MODULE
 
 REPO = Path(__file__).resolve().parents[2]
@@ -61,9 +62,9 @@ def _base_install(*argv: str, cwd: Path | None = None) -> subprocess.CompletedPr
                           capture_output=True, text=True, timeout=120, cwd=cwd)
 
 
-@pytest.mark.parametrize("argv", [["--help"], ["run", "--help"], ["sitl", "--help"], ["tune", "--help"],
-                                  ["params", "default"], ["sources"]],
-                         ids=["help", "run", "sitl", "tune-help", "params", "sources"])
+@pytest.mark.parametrize("argv", [["--help"], *([c, "--help"] for c in sorted(COMMANDS)), ["params", "default"],
+                                  ["sources"]],
+                         ids=["help", *(f"{c}-help" for c in sorted(COMMANDS)), "params", "sources"])
 def test_daemon_commands_run_without_the_extras(argv):
     proc = _base_install(*argv)
     assert proc.returncode == 0, (
@@ -77,3 +78,22 @@ def test_tune_without_the_extra_names_it_in_one_line(tmp_path):
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1, proc.stderr
     assert "uav-depth[tuning]" in lines[0] and lines[0].startswith("uav-depth tune: error:")
+
+
+def test_the_daemon_flies_a_replay_without_the_extras(tmp_path):
+    """Not only --help: `uav-depth run` processes frames and ends cleanly on the base install."""
+    import yaml
+
+    from mavlink_peer import free_port
+    from uav_depth.daemon.scene import SceneConfig, write_session
+
+    write_session(tmp_path / "s", 3, 1, SceneConfig(width=320, height=240, focal_px=200.0))
+    config = tmp_path / "run.yaml"
+    config.write_text(yaml.safe_dump({
+        "source": {"kind": "replay", "path": str(tmp_path / "s"), "rate_hz": 10},
+        "mavlink": {"url": f"udpout:127.0.0.1:{free_port()}"},
+        "logging": {"dir": str(tmp_path / "logs"), "every_n": 1}}))
+    proc = _base_install("run", "--config", str(config), cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-1500:]
+    assert "Traceback" not in proc.stderr
+    assert len(list((tmp_path / "logs").glob("*/frames/*_left.png"))) == 3    # it measured and logged every frame
