@@ -19,6 +19,8 @@ import numpy as np
 from uav_depth.daemon.errors import ConfigError, FileFormatError
 from uav_depth.daemon.session import FrameRecord, find_sessions, iter_frames
 
+from .reference.provenance import describe_source, read_provenance
+
 
 @dataclass(frozen=True, eq=False)
 class FrameData:
@@ -112,11 +114,7 @@ def load_frame(record: FrameRecord) -> FrameData:
     if record.session.calibration_path.exists():
         cal = record.session.calibration()
         focal, baseline = cal.focal_px, cal.baseline_m
-    source = None
-    if ref is not None:
-        from .reference.provenance import describe_source, read_provenance
-
-        source = describe_source(read_provenance(record))
+    source = describe_source(read_provenance(record)) if ref is not None else None
     return FrameData(record.key, left, right, ref, mask,
                      float(truth) if isinstance(truth, (int, float)) else None,
                      tuple(int(v) for v in roi) if isinstance(roi, list) and len(roi) == 4 else None,

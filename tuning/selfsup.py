@@ -37,6 +37,8 @@ import numpy as np
 from uav_depth.daemon.disparity import check_pair
 from uav_depth.daemon.errors import FrameError
 
+from .metrics import Box, in_box
+
 #: SSIM vs L1 mix of the photometric term (Monodepth, Monodepth2).
 ALPHA = 0.85
 #: Weight of the edge-aware smoothness term against the photometric term (Monodepth2
@@ -90,7 +92,7 @@ def _dssim(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def selfsup_terms(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
-                  box: tuple[int, int, int, int] | None = None) -> SelfsupTerms:
+                  box: Box | None = None) -> SelfsupTerms:
     """The reference-free loss and its parts; see :func:`selfsup_loss`."""
     check_pair(left, right)
     h, w = left.shape[:2]
@@ -115,10 +117,8 @@ def selfsup_terms(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
     smooth = _edge_aware_smoothness(il, disp, valid)
     cost = (photo + W_SMOOTH * smooth) / (1.0 + W_SMOOTH)
     cost = np.where(usable, cost, INVALID_COST)
-    if box is not None:
-        # Warping above used the whole right image; only the scored region counts.
-        x0, y0, x1, y1 = box
-        cost, photo, smooth, usable = (a[y0:y1, x0:x1] for a in (cost, photo, smooth, usable))
+    # Warping above used the whole right image; only the scored region counts.
+    cost, photo, smooth, usable = in_box(box, cost, photo, smooth, usable)
     n = int(usable.sum())
     return SelfsupTerms(
         loss=float(cost.mean()),
@@ -149,7 +149,7 @@ def _edge_aware_smoothness(img: np.ndarray, disp: np.ndarray, valid: np.ndarray)
 
 
 def selfsup_loss(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
-                 box: tuple[int, int, int, int] | None = None) -> float:
+                 box: Box | None = None) -> float:
     """Reference-free loss of a left disparity map, in 0..1, lower is better.
 
     ``left``/``right``: rectified uint8 grey (H, W) or BGR (H, W, 3) images.
