@@ -190,9 +190,14 @@ class ComputeParams:
     wls_at: str = "input"
 
     @property
+    def whole_frame(self) -> bool:
+        """No matching region: the pipeline answers (and is scored) over the whole image."""
+        return self.roi == (0.0, 0.0, 1.0, 1.0)
+
+    @property
     def is_baseline(self) -> bool:
         """Full frame, full resolution, colour as given: the manual baseline's computation."""
-        return self.roi == (0.0, 0.0, 1.0, 1.0) and self.scale == 1.0 and not self.grey
+        return self.whole_frame and self.scale == 1.0 and not self.grey
 
     def roi_pixels(self, width: int, height: int) -> tuple[int, int, int, int]:
         """The region in pixels of a ``width`` x ``height`` image: (x0, y0, x1, y1), x1/y1 exclusive.

@@ -24,6 +24,7 @@ Signal handlers (in the CLI) only set events: ``stop``, :meth:`Service.request_l
 from __future__ import annotations
 
 import collections
+import contextlib
 import functools
 import logging
 import math
@@ -127,14 +128,7 @@ def compute_roi_px(params: StereoParams, width: int, height: int) -> tuple[int, 
 
     Outside it the pipeline leaves disparity NaN; ranging outside it finds nothing.
     """
-    compute = getattr(params, "compute", None)
-    if compute is None or tuple(compute.roi) == (0.0, 0.0, 1.0, 1.0):
-        return None
-    if hasattr(compute, "roi_pixels"):
-        return tuple(compute.roi_pixels(width, height))
-    fx0, fy0, fx1, fy1 = (float(v) for v in compute.roi)
-    return (int(math.floor(fx0 * width + 0.5)), int(math.floor(fy0 * height + 0.5)),
-            int(math.floor(fx1 * width + 0.5)), int(math.floor(fy1 * height + 0.5)))
+    return None if params.compute.whole_frame else params.compute.roi_pixels(width, height)
 
 
 def check_roi_against_compute(roi: tuple[int, int, int, int], params: StereoParams, width: int,
@@ -374,11 +368,8 @@ class Service:
             if self._stopping.wait(delay):
                 return
             try:
-                self._source_since = time.monotonic()
-                try:
+                with self._in_source():
                     self.source.open()
-                finally:
-                    self._source_since = None
                 return
             except SourceError as exc:
                 log.info("camera still missing (%s); next try in %.1f s", exc, min(delay * 2, svc.reconnect_max_s))
@@ -391,11 +382,8 @@ class Service:
         last = time.monotonic()
         while not self._stopping.is_set():
             try:
-                self._source_since = time.monotonic()
-                try:
+                with self._in_source():
                     frame = self.source.read(min(0.2, svc.frame_timeout_s))
-                finally:
-                    self._source_since = None
             except EndOfStream as exc:
                 log.info("%s", exc)
                 self.ended = str(exc)
@@ -483,6 +471,15 @@ class Service:
             meta["branch_distance_m"] = frame.truth_m
         meta.update({k: v for k, v in frame.meta.items() if k not in meta})
         return meta
+
+    @contextlib.contextmanager
+    def _in_source(self):
+        """Mark the capture thread as inside the source (a read or open) for the stall check."""
+        self._source_since = time.monotonic()
+        try:
+            yield
+        finally:
+            self._source_since = None
 
     # -- main loop -------------------------------------------------------------------------------
     def healthy(self, now: float | None = None) -> bool:

@@ -30,7 +30,7 @@ def run(args: argparse.Namespace) -> int:
         raise FileFormatError(f"{args.logdir}: no frame with a reference disparity (*_ref.npy/.pfm/.png)")
     mean = mean_scores(scores)
     references = summarize_references(frames)
-    region = "whole frame" if params.compute.roi == (0.0, 0.0, 1.0, 1.0) else f"compute.roi {list(params.compute.roi)}"
+    region = "whole frame" if params.compute.whole_frame else f"compute.roi {list(params.compute.roi)}"
     if args.json:
         clean = lambda v: None if isinstance(v, float) and not math.isfinite(v) else v  # noqa: E731
         doc = {"params_hash": params.hash(), "scored": region, "references": references,
