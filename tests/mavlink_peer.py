@@ -18,11 +18,17 @@ def free_port(kind: int = socket.SOCK_DGRAM) -> int:
 
 
 class Receiver:
-    """A real udpin endpoint recording (arrival time, message) on a thread."""
+    """A real pymavlink endpoint recording (arrival time, message) on a thread.
 
-    def __init__(self):
-        self.port = free_port()
-        self.conn = mavutil().mavlink_connection(f"udpin:127.0.0.1:{self.port}", source_system=255)
+    Without ``url``: ``udpin`` on a free loopback port (``self.port``), the flight controller's side
+    of the daemon's ``udpout``.
+    """
+
+    def __init__(self, url: str | None = None, sysid: int = 255, compid: int = 0):
+        if url is None:
+            self.port = free_port()
+            url = f"udpin:127.0.0.1:{self.port}"
+        self.conn = mavutil().mavlink_connection(url, source_system=sysid, source_component=compid)
         self.msgs = []
         self._stop = threading.Event()
         self._t = threading.Thread(target=self._loop, daemon=True)
@@ -30,7 +36,10 @@ class Receiver:
 
     def _loop(self):
         while not self._stop.is_set():
-            m = self.conn.recv_match(blocking=True, timeout=0.05)
+            try:
+                m = self.conn.recv_match(blocking=True, timeout=0.05)
+            except OSError:     # the peer closed a TCP connection under us
+                return
             if m is not None and m.get_type() != "BAD_DATA":
                 self.msgs.append((time.monotonic(), m))
 
@@ -43,6 +52,16 @@ class Receiver:
 
     def texts(self):
         return [m.text for m in self.of("STATUSTEXT")]
+
+    def wait_for(self, mtype, timeout=5.0, count=1, pred=lambda m: True):
+        """At least ``count`` messages of ``mtype`` satisfying ``pred``, or AssertionError after ``timeout``."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            hits = [m for m in self.of(mtype) if pred(m)]
+            if len(hits) >= count:
+                return hits
+            time.sleep(0.01)
+        raise AssertionError(f"{count} x {mtype} not received within {timeout} s (got {len(self.of(mtype))})")
 
     def wait(self, pred, timeout=10.0):
         deadline = time.monotonic() + timeout

@@ -1,18 +1,17 @@
 """MAVLink output against real pymavlink endpoints on loopback: fields, clock, subscriptions, signing, reconnects."""
 
 import socket
-import threading
 import time
 
 import pytest
 
 from uav_depth.daemon.config import MavlinkConfig
 from uav_depth.daemon.errors import ConfigError
-from uav_depth.daemon.mavlink_out import (MavlinkLink, SendClock, distance_report, load_signing_key, mavutil,
+from uav_depth.daemon.mavlink_out import (MavlinkLink, SendClock, distance_report, load_signing_key,
                                           orientation_code)
 from uav_depth.daemon.ranging import Estimate, Measurement, RangeLimits
 
-from mavlink_peer import free_port
+from mavlink_peer import Receiver, free_port
 
 LIMITS = RangeLimits(min_distance_m=0.345, max_distance_m=10.0, hfov_rad=0.6, vfov_rad=0.35)
 
@@ -20,43 +19,6 @@ LIMITS = RangeLimits(min_distance_m=0.345, max_distance_m=10.0, hfov_rad=0.6, vf
 def estimate(distance=1.234, sigma=0.01, quality=80, t_capture=10.0, limits=LIMITS):
     m = Measurement(distance, sigma, quality) if distance is not None else Measurement(None, reason="none")
     return Estimate(m, limits, t_capture, t_capture + 0.05, 7, "abc")
-
-
-class Peer:
-    """A real pymavlink endpoint that records what arrives, on its own thread."""
-
-    def __init__(self, url, sysid=1, compid=1):
-        self.conn = mavutil().mavlink_connection(url, source_system=sysid, source_component=compid)
-        self.msgs = []
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._loop, daemon=True)
-        self._thread.start()
-
-    def _loop(self):
-        while not self._stop.is_set():
-            try:
-                m = self.conn.recv_match(blocking=True, timeout=0.05)
-            except OSError:
-                return
-            if m is not None and m.get_type() != "BAD_DATA":
-                self.msgs.append((time.monotonic(), m))
-
-    def of(self, mtype):
-        return [m for _, m in self.msgs if m.get_type() == mtype]
-
-    def wait_for(self, mtype, timeout=5.0, count=1, pred=lambda m: True):
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            hits = [m for m in self.of(mtype) if pred(m)]
-            if len(hits) >= count:
-                return hits
-            time.sleep(0.01)
-        raise AssertionError(f"{count} x {mtype} not received within {timeout} s (got {len(self.of(mtype))})")
-
-    def close(self):
-        self._stop.set()
-        self._thread.join(1)
-        self.conn.close()
 
 
 def test_fresh_estimate_fields():
@@ -92,7 +54,7 @@ def test_orientation_code_rejects_nonsense():
 
 def test_send_clock_heartbeat_and_distance_on_a_real_endpoint():
     port = free_port()
-    peer = Peer(f"udpin:127.0.0.1:{port}", sysid=255, compid=190)
+    peer = Receiver(f"udpin:127.0.0.1:{port}", sysid=255, compid=190)
     cfg = MavlinkConfig(url=f"udpout:127.0.0.1:{port}", rate_hz=25, sensor_id=3, orientation="down",
                         sensor_type="radar")
     link = MavlinkLink(cfg).start()
@@ -119,7 +81,7 @@ def test_send_clock_heartbeat_and_distance_on_a_real_endpoint():
 
 def test_subscribe_and_message_interval_over_the_same_connection():
     port = free_port()
-    autopilot = Peer(f"udpin:127.0.0.1:{port}", sysid=1, compid=1)
+    autopilot = Receiver(f"udpin:127.0.0.1:{port}", sysid=1, compid=1)
     link = MavlinkLink(MavlinkConfig(url=f"udpout:127.0.0.1:{port}")).start()
     got = []
     link.subscribe("LOCAL_POSITION_NED", got.append)
@@ -158,7 +120,7 @@ def test_signing_key_file_permissions_and_signed_messages(tmp_path):
     hex_file.chmod(0o600)
     assert load_signing_key(hex_file) == key
     port = free_port()
-    peer = Peer(f"udpin:127.0.0.1:{port}", sysid=255, compid=190)
+    peer = Receiver(f"udpin:127.0.0.1:{port}", sysid=255, compid=190)
     peer.conn.setup_signing(key, sign_outgoing=False)             # rejects anything not signed with the key
     link = MavlinkLink(MavlinkConfig(url=f"udpout:127.0.0.1:{port}", signing_key_file=key_file)).start()
     try:
@@ -182,7 +144,7 @@ def test_tcp_link_without_peer_never_blocks_and_reconnects():
         start = time.monotonic()
         assert not link.send(lambda mav: mav.heartbeat_encode(18, 8, 0, 0, 4))   # nobody there: dropped
         assert time.monotonic() - start < 0.1 and link.dropped == 1
-        server = Peer(f"tcpin:127.0.0.1:{port}", sysid=255, compid=190)
+        server = Receiver(f"tcpin:127.0.0.1:{port}", sysid=255, compid=190)
         assert link.wait_connected(5)
         deadline = time.monotonic() + 5
         while not server.of("HEARTBEAT") and time.monotonic() < deadline:
@@ -195,7 +157,7 @@ def test_tcp_link_without_peer_never_blocks_and_reconnects():
             link.heartbeat()
             time.sleep(0.05)
         assert not link.connected
-        server = Peer(f"tcpin:127.0.0.1:{port}", sysid=255, compid=190)   # and comes back
+        server = Receiver(f"tcpin:127.0.0.1:{port}", sysid=255, compid=190)   # and comes back
         deadline = time.monotonic() + 5
         while not server.of("HEARTBEAT") and time.monotonic() < deadline:
             link.heartbeat()
