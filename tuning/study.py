@@ -186,7 +186,7 @@ class Study:
         if n_cached:
             self.progress(n_cached, math.nan)
         keys = list(todo)
-        tasks = [Task(todo[k][0]) for k in keys] if not self.stop.is_set() else []
+        tasks = [Task(todo[k][0]) for k in keys]   # every executor starts nothing once stop is set
         for j, ev in self.executor.imap(tasks, self.stop):
             key = keys[j]
             params, idx = todo[key]
