@@ -47,14 +47,13 @@ def write_motorcycle_session(path: str) -> None:
     """The motorcycle pair as a session in the log layout, for ``uav-depth tune PATH``."""
     from uav_depth.daemon.calibration import Calibration
     from uav_depth.daemon.session import SessionWriter
+    from uav_depth.tuning.reference.provenance import make_provenance
 
     frame = motorcycle().frames[0]
     h, w = frame.left.shape[:2]
     # Middlebury 2014 Motorcycle at a quarter of full size: f = 3979.911 / 4 px, B = 0.193 m (only
     # recorded for completeness: no metric here converts its disparity to metres)
     cal = Calibration(focal_px=3979.911 / 4, baseline_m=0.193001, width=w, height=h)
-    from uav_depth.tuning.reference.provenance import make_provenance
-
     source = make_provenance("import", source="skimage.data.stereo_motorcycle (Middlebury 2014 ground truth)",
                              format="npy", scale=1.0)
     SessionWriter(path, cal).write(0, frame.left, frame.right, reference=frame.reference, reference_source=source)

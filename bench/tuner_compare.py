@@ -1,9 +1,9 @@
-"""Faithful vs improved search at an equal budget: tuned vs manual on train and held-out frames.
+"""Faithful vs improved search at an equal budget: tuned vs the base on train and held-out frames.
 
 Runs each optimiser (same metric, population x generations, runs, seed) on the
 same frames and prints, per optimiser, the fitness of its best parameters and
 the change of MSE, PSNR, SSIM, bad-2 (and branch error where known) against the
-manual baseline on the training and the held-out frames, next to the paper's
+base (`--base`, by default the manual baseline) on the training and the held-out frames, next to the paper's
 -42.86% MSE / +8.47% PSNR / +28.52% SSIM.
 
     python bench/tuner_compare.py --data motorcycle --generations 20
@@ -94,7 +94,7 @@ def main() -> int:
                                    "wall_s": wall, "best_params": res.best_params().to_dict(),
                                    "history_mean": np.nanmean([r.history for r in res.runs], axis=0).tolist()}
             spread = f" (runs: mean {np.mean(bests):.4g} +- {np.std(bests):.2g})" if args.runs > 1 else ""
-            print(f"\n{opt}: best {args.metric} {res.best.best_value:.4g} vs manual {res.baseline.value:.4g}{spread}; "
+            print(f"\n{opt}: best {args.metric} {res.best.best_value:.4g} vs base {res.baseline.value:.4g}{spread}; "
                   f"{res.evaluated} evaluated, {res.cached} cached, {wall:.0f} s")
             for n in names:
                 cells = []
