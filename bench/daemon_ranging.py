@@ -33,13 +33,15 @@ from pathlib import Path
 
 import numpy as np
 
-from uav_depth.daemon.benchmark import machine_line
-from uav_depth.daemon.config import RangingConfig, run_config_from_dict
-from uav_depth.daemon.disparity import DisparityPipeline
-from uav_depth.daemon.mavlink_out import mavutil
-from uav_depth.daemon.params import DEFAULT_PARAMS, load_params
+from uav_depth.cli.benchmark import machine_line
+from uav_depth.cli.sources import SOURCES
+from uav_depth.daemon.config import run_config_from_dict
+from uav_depth.daemon.ranging import RangingConfig
+from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.daemon.mavlink_enums import mavutil
+from uav_depth.core.params import DEFAULT_PARAMS, load_params
 from uav_depth.daemon.ranging import Ranger
-from uav_depth.daemon.scene import Scene, SceneConfig, vary
+from uav_depth.sim.scene import Scene, SceneConfig, vary
 from uav_depth.daemon.service import Service
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -56,7 +58,7 @@ def pct(values, q):
 
 
 def bench_loop(params_name, params, seconds: float, tmp: Path) -> None:
-    from uav_depth.daemon.params import save_params
+    from uav_depth.core.params import save_params
 
     path = tmp / f"{params_name}.yaml"
     save_params(params, path)
@@ -79,7 +81,7 @@ def bench_loop(params_name, params, seconds: float, tmp: Path) -> None:
     cfg = run_config_from_dict({
         "source": {"kind": "synthetic", "fps": 60, "scene": {"branch_distance_m": 1.0, "seed": 3}},
         "params_file": str(path), "mavlink": {"url": f"udpout:127.0.0.1:{port}", "rate_hz": 20},
-        "service": {"status_interval_s": 3600}})
+        "service": {"status_interval_s": 3600}}, sources=SOURCES)
     svc = Service(cfg)
     stop = threading.Event()
     runner = threading.Thread(target=svc.run, args=(stop,), daemon=True)

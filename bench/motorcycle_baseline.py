@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 from skimage import data
 
-from uav_depth.daemon.disparity import DisparityPipeline
-from uav_depth.daemon.params import DEFAULT_PARAMS
+from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.core.params import DEFAULT_PARAMS
 from uav_depth.tuning.metrics import score
 
 left, right, gt = data.stereo_motorcycle()

@@ -6,7 +6,7 @@ Same as ``uav-depth bench``; arguments are passed through, e.g.
 
 import sys
 
-from uav_depth.daemon.cli import main
+from uav_depth.cli.main import main
 
 if __name__ == "__main__":
     sys.exit(main(["bench", *sys.argv[1:]]))

@@ -31,9 +31,9 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import spearmanr
 
-from uav_depth.daemon.disparity import DisparityPipeline
-from uav_depth.daemon.errors import ConfigError
-from uav_depth.daemon.params import DEFAULT_PARAMS, OPENCV_COST_MAX, SPEC_BY_KEY, StereoParams, params_from_dict
+from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.core.errors import ConfigError
+from uav_depth.core.params import DEFAULT_PARAMS, OPENCV_COST_MAX, SPEC_BY_KEY, StereoParams, params_from_dict
 from uav_depth.tuning import selfsup
 from uav_depth.tuning.metrics import score
 
@@ -85,7 +85,7 @@ def _load_frames(data: str, synth_dir: str | None) -> list:
         left, right, gt = skdata.stereo_motorcycle()
         return [(cv2.cvtColor(left, cv2.COLOR_RGB2BGR), cv2.cvtColor(right, cv2.COLOR_RGB2BGR),
                  gt.astype(np.float32))]
-    from uav_depth.daemon.session import iter_frames
+    from uav_depth.core.session import iter_frames
 
     return [(*f.load_pair(), f.load_reference()) for f in iter_frames(synth_dir, require_reference=True)]
 
@@ -207,7 +207,7 @@ def main(argv: list[str] | None = None) -> int:
             w, h = (int(v) for v in args.synth_size.split("x"))
             synth_dir = str(Path(tmp) / "synth")
             # Same f*B/width as the default rig, so disparities stay in SGBM's default range.
-            subprocess.run([sys.executable, "-m", "uav_depth.daemon.cli", "synth", synth_dir, "--frames",
+            subprocess.run([sys.executable, "-m", "uav_depth.cli.main", "synth", synth_dir, "--frames",
                             str(args.synth_frames), "--seed", str(args.seed), "--width", str(w), "--height", str(h),
                             "--focal-px", str(700.0 * w / 1280.0)], check=True, capture_output=True)
         for data in (("motorcycle", "synth") if args.data == "both" else (args.data,)):

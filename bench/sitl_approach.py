@@ -51,7 +51,7 @@ def main() -> None:
         config["logging"] = {"dir": None}
         (tmp / "sitl.yaml").write_text(yaml.safe_dump(config))
         vehicle = loop.Vehicle(port, loop.Path())
-        proc = subprocess.Popen([sys.executable, "-m", "uav_depth.daemon.cli", "sitl", "--config",
+        proc = subprocess.Popen([sys.executable, "-m", "uav_depth.cli.main", "sitl", "--config",
                                  str(tmp / "sitl.yaml"), "--tree-ned", *map(str, loop.TREE_NED),
                                  "--truth-log", str(tmp / "truth.csv")],
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

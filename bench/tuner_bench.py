@@ -29,7 +29,7 @@ import time
 import cv2
 import numpy as np
 
-from uav_depth.daemon.benchmark import machine_line
+from uav_depth.cli.benchmark import machine_line
 
 
 def motorcycle():
@@ -45,8 +45,8 @@ def motorcycle():
 
 def write_motorcycle_session(path: str) -> None:
     """The motorcycle pair as a session in the log layout, for ``uav-depth tune PATH``."""
-    from uav_depth.daemon.calibration import Calibration
-    from uav_depth.daemon.session import SessionWriter
+    from uav_depth.core.calibration import Calibration
+    from uav_depth.core.session import SessionWriter
     from uav_depth.tuning.reference.provenance import make_provenance
 
     frame = motorcycle().frames[0]
@@ -61,7 +61,7 @@ def write_motorcycle_session(path: str) -> None:
 
 def plain_loop(config, frames, base):
     """The reference: the optimiser with every proposal evaluated on the spot, no cache, no pool."""
-    from uav_depth.daemon.errors import ConfigError
+    from uav_depth.core.errors import ConfigError
     from uav_depth.tuning.executor import EVAL_THREADS
     from uav_depth.tuning.objective import FITNESS, evaluate
     from uav_depth.tuning.optimizers import OPTIMIZERS, make_space
@@ -118,7 +118,7 @@ def study(config, frames, base, workers, ray=False):
 
 
 def main() -> int:
-    from uav_depth.daemon.params import DEFAULT_PARAMS
+    from uav_depth.core.params import DEFAULT_PARAMS
     from uav_depth.tuning.study import StudyConfig
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])

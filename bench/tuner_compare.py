@@ -40,7 +40,7 @@ def load(data: str, holdout: str | None, needs):
 
 
 def main() -> int:
-    from uav_depth.daemon.params import DEFAULT_PARAMS, load_params, params_from_dict
+    from uav_depth.core.params import DEFAULT_PARAMS, load_params, params_from_dict
     from uav_depth.tuning.executor import make_executor
     from uav_depth.tuning.objective import FITNESS
     from uav_depth.tuning.report import PAPER_CHANGE, comparison

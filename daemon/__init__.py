@@ -1,8 +1,7 @@
-"""uav_depth.daemon: the on-board runtime; owns the parameter schema and the disparity pipeline."""
+"""uav_depth.daemon: the on-board runtime, what flies on the drone.
 
-from importlib.metadata import PackageNotFoundError, version
-
-try:
-    __version__ = version("uav-depth")
-except PackageNotFoundError:  # running from a source tree that is not installed
-    __version__ = "0+unknown"
+Frame sources (real cameras and replay), ranging, the MAVLink link, hot reload,
+sd_notify, the frame logger and the service that ties them together. It imports
+only :mod:`uav_depth.core`; the simulator plugs its synthetic source in through
+the :mod:`.sources.base` interface, handed over by the CLI.
+"""

@@ -18,15 +18,19 @@ from __future__ import annotations
 import logging
 import os
 import re
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
 import yaml
 
-from .calibration import Calibration, calibration_from_dict, load_calibration
-from .errors import ConfigError, FileFormatError
-from .validate import fmt, in_range, number
+from uav_depth.core.calibration import Calibration, calibration_from_dict, load_calibration
+from uav_depth.core.errors import ConfigError, FileFormatError
+from uav_depth.core.keys import Key, section_values
+from uav_depth.daemon.mavlink_enums import orientation_code
+from uav_depth.daemon.ranging import RangingConfig
+from uav_depth.daemon.sources import BUILTIN, SourceTable, source_config_from_dict, source_keys
+from uav_depth.core.validate import fmt, in_range, number
 
 log = logging.getLogger("uav_depth.config")
 
@@ -35,139 +39,7 @@ ENV_PREFIX = "UAV_DEPTH_"
 ENV_RESERVED = ("UAV_DEPTH_CONFIG",)
 
 
-@dataclass(frozen=True)
-class Key:
-    """Declaration of one config key: type, default, bounds, meaning.
-
-    ``kind``: int, float, bool, str, path, roi (four ints x0 y0 x1 y1, px), any.
-    ``lo``/``hi`` are inclusive unless ``hi_open`` (value must be below ``hi``).
-    ``optional``: null is accepted (and is the default when ``default`` is None).
-    ``check``: an extra rule, returning the error text or None.
-    """
-
-    name: str
-    kind: str
-    default: Any
-    doc: str
-    lo: float | None = None
-    hi: float | None = None
-    hi_open: bool = False
-    choices: tuple[Any, ...] | None = None
-    optional: bool = False
-    check: Callable[[Any], str | None] | None = None
-    accepts: str | None = None       # what the README says the key accepts, when the kind does not say it
-
-    def accepted(self) -> str:
-        """Human text of what the key accepts (README table)."""
-        if self.accepts:
-            text = self.accepts
-        elif self.kind == "bool":
-            text = "true / false"
-        elif self.choices:
-            text = " / ".join(str(c) for c in self.choices)
-        elif self.kind == "roi":
-            text = "[x0, y0, x1, y1] px"
-        elif self.lo is not None and self.hi is not None:
-            text = f"{fmt(self.lo)}..{fmt(self.hi)}" + (" (exclusive)" if self.hi_open else "")
-        elif self.lo is not None:
-            text = f">= {fmt(self.lo)}"
-        else:
-            text = self.kind
-        return text + (", or null" if self.optional else "")
-
-    def validate(self, section: str, value: Any, source: str | None) -> Any:
-        key = f"{section}.{self.name}" if section else self.name
-        if value is None:
-            if self.optional:
-                return None
-            raise ConfigError(key, "is required", None, source)
-        kind = self.kind
-        if kind == "bool":
-            if not isinstance(value, bool):
-                raise ConfigError(key, "must be true or false", value, source)
-        elif kind in ("int", "float"):
-            value = number(key, value, kind == "int", source)
-            in_range(key, value, self.lo, self.hi, source, self.hi_open)
-        elif kind in ("str", "path"):
-            if not isinstance(value, str) or not value:
-                raise ConfigError(key, "must be a non-empty string", value, source)
-            if kind == "path":
-                value = Path(os.path.expanduser(value))
-        elif kind == "roi":
-            if (not isinstance(value, (list, tuple)) or len(value) != 4
-                    or any(isinstance(v, bool) or not isinstance(v, int) for v in value)):
-                raise ConfigError(key, "must be four integers [x0, y0, x1, y1] in pixels", value, source)
-            x0, y0, x1, y1 = value
-            if not (0 <= x0 < x1 and 0 <= y0 < y1):
-                raise ConfigError(key, "must satisfy 0 <= x0 < x1 and 0 <= y0 < y1", list(value), source)
-            value = (x0, y0, x1, y1)
-        if self.choices is not None and value not in self.choices:
-            raise ConfigError(key, f"must be one of {', '.join(map(str, self.choices))}", value, source)
-        if self.check is not None:
-            problem = self.check(value)
-            if problem:
-                raise ConfigError(key, problem, value, source)
-        return value
-
-
-def section_values(keys: tuple[Key, ...], data: Any, section: str, source: str | None,
-                   extra: tuple[str, ...] = (), origin: Mapping[str, str] | None = None) -> dict[str, Any]:
-    """Validate one mapping against ``keys``: unknown keys are errors, missing ones take defaults.
-
-    ``origin`` maps a dotted key to where its value came from (an environment
-    variable, an argument); errors name it instead of ``source``.
-    """
-    origin = origin or {}
-    if data is None:
-        data = {}
-    if not isinstance(data, Mapping):
-        raise ConfigError(section, "must be a mapping", data, origin.get(section, source))
-    known = {k.name for k in keys}
-    for name in data:
-        if name not in known and name not in extra:
-            raise ConfigError(f"{section}.{name}",
-                              f"is not a known key (known: {', '.join(sorted(known | set(extra)))})",
-                              data[name], origin.get(f"{section}.{name}", source))
-    return {k.name: k.validate(section, data.get(k.name, k.default), origin.get(f"{section}.{k.name}", source))
-            for k in keys}
-
-
 # -- sections ---------------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class RangingConfig:
-    """Branch ranging (see :mod:`uav_depth.daemon.ranging`)."""
-
-    roi: tuple[int, int, int, int] | None = None
-    min_valid_px: int = 100
-    min_confidence: float = 0.5
-    max_age_ms: float = 300.0
-    max_distance_m: float = 10.0
-    cluster_depth_m: float = 0.05
-    surface_quantile: float = 0.2
-    max_jump_rel: float = 0.2
-    confirm_frames: int = 2
-
-    KEYS = (
-        Key("roi", "roi", None, "region of interest in the rectified left image, px; null: the central third",
-            optional=True),
-        Key("min_valid_px", "int", 100, "fewest measured pixels the nearest object needs to count", 1, 10_000_000),
-        Key("min_confidence", "float", 0.5, "WLS confidence (0..1) a measured pixel needs to be used", 0.0, 1.0),
-        Key("max_age_ms", "float", 300.0,
-            "an estimate older than this (from frame capture) is never sent as valid; "
-            "ArduPilot drops a rangefinder after 500 ms", 1.0, 500.0, hi_open=True),
-        Key("max_distance_m", "float", 10.0, "farthest distance reported; farther objects count as no measurement",
-            0.05, 600.0),
-        Key("cluster_depth_m", "float", 0.05, "depth band behind the nearest surface that belongs to the same object",
-            0.001, 5.0),
-        Key("surface_quantile", "float", 0.2,
-            "share of the object's confident pixels nearer than the reported surface: 0.5 is the object's "
-            "median depth, lower reads its nearest surface (what the pruning tool meets)", 0.0, 0.5),
-        Key("max_jump_rel", "float", 0.2, "a change larger than this fraction is held back until confirmed "
-            "(single-frame outlier rejection); 0 disables", 0.0, 10.0),
-        Key("confirm_frames", "int", 2, "consecutive agreeing frames that confirm a jump", 1, 100),
-    )
-
 
 _URL_SCHEMES = ("udpout", "udpin", "udp", "udpbcast", "tcp", "tcpin")
 
@@ -186,8 +58,6 @@ def _check_url(url: str) -> str | None:
 
 
 def _check_orientation(value: Any) -> str | None:
-    from .mavlink_out import orientation_code
-
     try:
         orientation_code(value)
     except ValueError as exc:
@@ -291,7 +161,7 @@ TOP_KEYS = ("source", "calibration", "params_file", *SECTION_CLASSES)
 class RunConfig:
     """The whole validated run config. Build with :func:`load_run_config` or :func:`run_config_from_dict`."""
 
-    source: Any                         # the source's own frozen config (see sources.SOURCES)
+    source: Any                         # the source's own frozen config (see uav_depth.daemon.sources)
     calibration: Calibration | None = None
     params_file: Path | None = None
     ranging: RangingConfig = RangingConfig()
@@ -327,14 +197,13 @@ def _calibration(value: Any, base: Path | None, source: str | None) -> Calibrati
 
 
 def run_config_from_dict(data: Any, source: str | None = None, base_dir: Path | None = None,
-                         origin: Mapping[str, str] | None = None) -> RunConfig:
+                         origin: Mapping[str, str] | None = None, sources: SourceTable = BUILTIN) -> RunConfig:
     """Validate a nested mapping into a :class:`RunConfig`.
 
     Relative paths (calibration, params_file, logging.dir, replay path) are taken
-    relative to ``base_dir`` (the config file's directory).
+    relative to ``base_dir`` (the config file's directory). ``sources``: the frame
+    source kinds accepted (the CLI adds the simulator's to the runtime's own).
     """
-    from .sources import source_config_from_dict
-
     if data is None:
         data = {}
     if not isinstance(data, Mapping):
@@ -345,8 +214,8 @@ def run_config_from_dict(data: Any, source: str | None = None, base_dir: Path | 
     origin = dict(origin or {})
     src = lambda key: origin.get(key, source)  # noqa: E731  where a key's value came from
     if data.get("source") is None:
-        raise ConfigError("source", "is required (a mapping with kind: synthetic, replay, uvc or oak)", None, source)
-    source_cfg = source_config_from_dict(data["source"], source, base_dir, origin)
+        raise ConfigError("source", f"is required (a mapping with kind: {', '.join(sources)})", None, source)
+    source_cfg = source_config_from_dict(data["source"], source, base_dir, origin, sources)
     calibration = _calibration(data.get("calibration"), base_dir, src("calibration"))
     params_file = Key("params_file", "path", None, "", optional=True).validate(
         "", data.get("params_file"), src("params_file"))
@@ -355,7 +224,7 @@ def run_config_from_dict(data: Any, source: str | None = None, base_dir: Path | 
     sections = {name: cls(**section_values(cls.KEYS, data.get(name), name, source, origin=origin))
                 for name, cls in SECTION_CLASSES.items()}
     if sections["logging"].dir is not None and not sections["logging"].dir.is_absolute() and base_dir is not None:
-        sections["logging"] = _replace(sections["logging"], dir=base_dir / sections["logging"].dir)
+        sections["logging"] = replace(sections["logging"], dir=base_dir / sections["logging"].dir)
     mav = sections["mavlink"]
     if (mav.system_id, mav.component_id) == (1, 1):
         raise ConfigError("mavlink.component_id", "must not be 1 when system_id is 1 (ArduPilot drops messages "
@@ -368,25 +237,17 @@ def run_config_from_dict(data: Any, source: str | None = None, base_dir: Path | 
                      **sections)
 
 
-def _replace(obj: Any, **changes: Any) -> Any:
-    from dataclasses import replace
-
-    return replace(obj, **changes)
-
-
 # -- resolution: argument > environment > file > default ------------------------------------
 
-def env_keys() -> dict[str, str]:
+def env_keys(sources: SourceTable = BUILTIN) -> dict[str, str]:
     """``UAV_DEPTH_*`` variable name -> dotted config key, for every settable key."""
-    from .sources import SOURCES, source_keys
-
     out = {f"{ENV_PREFIX}PARAMS_FILE": "params_file", f"{ENV_PREFIX}CALIBRATION": "calibration"}
     for name, cls in SECTION_CLASSES.items():
         for k in cls.KEYS:
             out[f"{ENV_PREFIX}{name.upper()}_{k.name.upper()}"] = f"{name}.{k.name}"
     out[f"{ENV_PREFIX}SOURCE_KIND"] = "source.kind"
-    for kind in SOURCES:
-        for k in source_keys(kind):
+    for kind in sources:
+        for k in source_keys(kind, sources):
             out[f"{ENV_PREFIX}SOURCE_{k.name.upper()}"] = f"source.{k.name}"
     return out
 
@@ -442,13 +303,14 @@ def _deep_copy(d: Any) -> Any:
 
 
 def load_run_config(path: str | os.PathLike[str] | None = None, overrides: Mapping[str, Any] | None = None,
-                    environ: Mapping[str, str] | None = None) -> RunConfig:
+                    environ: Mapping[str, str] | None = None, sources: SourceTable = BUILTIN) -> RunConfig:
     """Resolve and validate the run config.
 
     ``path``: the YAML file (None: ``UAV_DEPTH_CONFIG`` or no file). ``overrides``:
     dotted key -> value given explicitly (command line); they win over
     ``UAV_DEPTH_*`` variables in ``environ`` (default ``os.environ``), which win
     over the file. Unknown ``UAV_DEPTH_*`` variables are logged, not fatal.
+    ``sources``: the frame source kinds accepted.
     """
     environ = os.environ if environ is None else environ
     if path is None and environ.get("UAV_DEPTH_CONFIG"):
@@ -461,7 +323,7 @@ def load_run_config(path: str | os.PathLike[str] | None = None, overrides: Mappi
         source = str(path)
         base_dir = Path(path).resolve().parent
     origin: dict[str, str] = {}
-    known = env_keys()
+    known = env_keys(sources)
     for name in sorted(environ):
         if not name.startswith(ENV_PREFIX) or name in ENV_RESERVED:
             continue
@@ -477,21 +339,19 @@ def load_run_config(path: str | os.PathLike[str] | None = None, overrides: Mappi
         _set_dotted(data, dotted, value)
         origin[dotted] = "command line"
         origin.setdefault(dotted.split(".")[0], "command line")
-    return run_config_from_dict(data, source, base_dir, origin)
+    return run_config_from_dict(data, source, base_dir, origin, sources)
 
 
-def reference_markdown() -> str:
-    """The README's config reference: every key of every section, from the tables above."""
-    from .sources import SOURCES, source_keys
-
+def reference_markdown(sources: SourceTable = BUILTIN) -> str:
+    """The config reference: every key of every section, from the tables above."""
     rows = ["| key | default | accepted | meaning |", "|---|---|---|---|"]
     rows.append("| `params_file` | null | path, or null | stereo parameter file, hot-reloaded; null or absent "
                 "file: built-in manual defaults |")
     rows.append("| `calibration` | null | path, mapping, or null | stereo calibration (file or inline); "
                 "null: the source's own |")
-    rows.append(f"| `source.kind` | (required) | {' / '.join(SOURCES)} | frame source |")
-    for kind in SOURCES:
-        for k in source_keys(kind):
+    rows.append(f"| `source.kind` | (required) | {' / '.join(sources)} | frame source |")
+    for kind in sources:
+        for k in source_keys(kind, sources):
             rows.append(f"| `source.{k.name}` ({kind}) | {_default(k)} | {k.accepted()} | {k.doc} |")
     for name, cls in SECTION_CLASSES.items():
         for k in cls.KEYS:

@@ -26,9 +26,9 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from .calibration import Calibration
-from .config import LoggingConfig
-from .session import Session, SessionWriter
+from uav_depth.core.calibration import Calibration
+from uav_depth.daemon.config import LoggingConfig
+from uav_depth.core.session import Session, SessionWriter
 
 log = logging.getLogger("uav_depth.framelog")
 

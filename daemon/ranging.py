@@ -29,11 +29,11 @@ from typing import Mapping
 
 import numpy as np
 
-from .calibration import Calibration
-from .config import RangingConfig
-from .disparity import DisparityResult
-from .errors import ConfigError
-from .params import StereoParams
+from uav_depth.core.calibration import Calibration
+from uav_depth.core.disparity import DisparityResult
+from uav_depth.core.errors import ConfigError
+from uav_depth.core.keys import Key
+from uav_depth.core.params import StereoParams
 
 #: Disparity margin around the object's depth band, matched px: SGBM's typical matching noise.
 CLUSTER_MARGIN_PX = 1.0
@@ -42,6 +42,42 @@ CLUSTER_MARGIN_PX = 1.0
 #: whole branch), so even a perfectly tight cluster is only known to about +-0.5 px: a uniform
 #: error of that width has sigma 1/sqrt(12).
 PIXEL_LOCKING_SIGMA_PX = 1.0 / math.sqrt(12.0)
+
+
+@dataclass(frozen=True)
+class RangingConfig:
+    """The ``ranging:`` section: how the nearest object is found and when an estimate is too old."""
+
+    roi: tuple[int, int, int, int] | None = None
+    min_valid_px: int = 100
+    min_confidence: float = 0.5
+    max_age_ms: float = 300.0
+    max_distance_m: float = 10.0
+    cluster_depth_m: float = 0.05
+    surface_quantile: float = 0.2
+    max_jump_rel: float = 0.2
+    confirm_frames: int = 2
+
+    KEYS = (
+        Key("roi", "roi", None, "region of interest in the rectified left image, px; null: the central third",
+            optional=True),
+        Key("min_valid_px", "int", 100, "fewest measured pixels the nearest object needs to count", 1, 10_000_000),
+        Key("min_confidence", "float", 0.5, "WLS confidence (0..1) a measured pixel needs to be used", 0.0, 1.0),
+        Key("max_age_ms", "float", 300.0,
+            "an estimate older than this (from frame capture) is never sent as valid; "
+            "ArduPilot drops a rangefinder after 500 ms", 1.0, 500.0, hi_open=True),
+        Key("max_distance_m", "float", 10.0, "farthest distance reported; farther objects count as no measurement",
+            0.05, 600.0),
+        Key("cluster_depth_m", "float", 0.05, "depth band behind the nearest surface that belongs to the same object",
+            0.001, 5.0),
+        Key("surface_quantile", "float", 0.2,
+            "share of the object's confident pixels nearer than the reported surface: 0.5 is the object's "
+            "median depth, lower reads its nearest surface (what the pruning tool meets)", 0.0, 0.5),
+        Key("max_jump_rel", "float", 0.2, "a change larger than this fraction is held back until confirmed "
+            "(single-frame outlier rejection); 0 disables", 0.0, 10.0),
+        Key("confirm_frames", "int", 2, "consecutive agreeing frames that confirm a jump", 1, 100),
+    )
+
 
 
 @dataclass(frozen=True)

@@ -34,18 +34,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from .calibration import Calibration
-from .config import RunConfig
-from .disparity import DisparityPipeline
-from .errors import CalibrationError, ConfigError, FileFormatError, FrameError, SourceError, UavDepthError
-from .framelog import FrameLogger
-from .mavlink_out import MavlinkLink, SendClock
-from .notify import Notifier
-from .params import DEFAULT_PARAMS, StereoParams, load_params
-from .ranging import Estimate, OutlierGate, Ranger, RangeLimits, resolve_roi
-from .rectify import Rectifier
-from .reload import FileWatcher, file_signature
-from .sources import EndOfStream, Frame, FrameSource, create_source
+from uav_depth.core.calibration import Calibration
+from uav_depth.daemon.config import RunConfig
+from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError, FrameError, SourceError, UavDepthError
+from uav_depth.daemon.framelog import FrameLogger
+from uav_depth.daemon.mavlink_out import MavlinkLink, SendClock
+from uav_depth.daemon.notify import Notifier
+from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, load_params
+from uav_depth.daemon.ranging import Estimate, OutlierGate, Ranger, RangeLimits, resolve_roi
+from uav_depth.core.rectify import Rectifier
+from uav_depth.daemon.reload import FileWatcher, file_signature
+from uav_depth.daemon.sources import EndOfStream, Frame, FrameSource, create_source
 
 log = logging.getLogger("uav_depth.service")
 

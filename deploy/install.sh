@@ -159,7 +159,7 @@ if [ -e "$params" ]; then
     say "keeping existing $params"
 elif [ $dry -eq 1 ]; then
     say "+ install -m 0640 $here/params-flight.yaml $params (after uav-depth params check)"
-elif why=$("$root$venv/bin/python" -m uav_depth.daemon.cli params check "$here/params-flight.yaml" 2>&1); then
+elif why=$("$root$venv/bin/python" -m uav_depth.cli.main params check "$here/params-flight.yaml" 2>&1); then
     # The flight file, not the manual baseline: the baseline takes about 0.6 s per 1280x720
     # frame on a 2-core computer, older than any estimate the daemon may send as valid.
     # It is checked by the installed schema itself before it becomes the daemon's file.
@@ -192,7 +192,7 @@ fi
 if [ $booted -eq 1 ]; then act systemctl try-restart uav-depth.service; fi
 
 # 7. Check the config with the installed package: a bad one would only show in the journal later.
-cfg_check=(-m uav_depth.daemon.cli run --check --config "$root/etc/uav-depth/config.yaml")
+cfg_check=(-m uav_depth.cli.main run --check --config "$root/etc/uav-depth/config.yaml")
 if [ $dry -eq 1 ]; then
     say "+ $root$venv/bin/python ${cfg_check[*]}"
 elif out=$("$root$venv/bin/python" "${cfg_check[@]}" 2>&1); then

@@ -7,7 +7,7 @@ import functools
 import numpy as np
 import pytest
 
-from uav_depth.daemon.scene import Scene, SceneConfig
+from uav_depth.sim.scene import Scene, SceneConfig
 
 
 @functools.lru_cache(maxsize=None)
@@ -36,3 +36,13 @@ def _motorcycle():
 def motorcycle():
     """scikit-image's Middlebury 2014 motorcycle pair (BGR) and its ground truth."""
     return _motorcycle()
+
+
+@pytest.fixture
+def rx():
+    """A real pymavlink endpoint on loopback, standing in for the flight controller."""
+    from mavlink_peer import Receiver
+
+    r = Receiver()
+    yield r
+    r.close()

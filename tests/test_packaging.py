@@ -25,7 +25,7 @@ def test_wheel_layout(tmp_path):
             rel = py.relative_to(ROOT / src).as_posix()
             assert f"{dst}/{rel}" in names, f"{src}/{rel} missing from the wheel"
     entry = [n for n in names if n.endswith("entry_points.txt")]
-    assert "uav-depth = uav_depth.daemon.cli:entry" in zipfile.ZipFile(wheel).read(entry[0]).decode()
+    assert "uav-depth = uav_depth.cli.main:entry" in zipfile.ZipFile(wheel).read(entry[0]).decode()
 
 
 def test_import_names():

@@ -9,13 +9,13 @@ from typing import Iterable
 
 import numpy as np
 
-from uav_depth.daemon.disparity import DisparityPipeline
-from uav_depth.daemon.errors import FileFormatError
-from uav_depth.daemon.params import StereoParams
-from uav_depth.daemon.session import FrameRecord
+from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.core.errors import FileFormatError
+from uav_depth.core.params import StereoParams
+from uav_depth.core.session import FrameRecord
 
-from .metrics import METRIC_NAMES, in_box, score
-from .objective import scored_box
+from uav_depth.tuning.metrics import METRIC_NAMES, in_box, score
+from uav_depth.tuning.objective import scored_box
 
 
 @dataclass(frozen=True)

@@ -23,10 +23,10 @@ from collections import deque
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import Iterator, Mapping, Protocol, Sequence
 
-from uav_depth.daemon.errors import ConfigError, DependencyError
+from uav_depth.core.errors import ConfigError, DependencyError
 
-from .frames import FrameSet
-from .objective import Evaluation, Objective, Task
+from uav_depth.tuning.frames import FrameSet
+from uav_depth.tuning.objective import Evaluation, Objective, Task
 
 #: OpenCV threads per evaluating process (see the module docstring).
 EVAL_THREADS = 1

@@ -16,10 +16,10 @@ from typing import Iterable
 
 import numpy as np
 
-from uav_depth.daemon.errors import ConfigError, FileFormatError
-from uav_depth.daemon.session import FrameRecord, find_sessions, iter_frames
+from uav_depth.core.errors import ConfigError, FileFormatError
+from uav_depth.core.session import FrameRecord, find_sessions, iter_frames
 
-from .reference.provenance import describe_source, read_provenance
+from uav_depth.tuning.reference.provenance import describe_source, read_provenance
 
 
 @dataclass(frozen=True, eq=False)

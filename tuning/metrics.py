@@ -19,7 +19,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from uav_depth.daemon.errors import FrameError
+from uav_depth.core.errors import FrameError
 
 try:
     from skimage.metrics import structural_similarity
@@ -94,7 +94,7 @@ def psnr(reference: np.ndarray, estimate: np.ndarray) -> float:
 
 def ssim(reference: np.ndarray, estimate: np.ndarray) -> float:
     if structural_similarity is None:
-        from uav_depth.daemon.errors import DependencyError
+        from uav_depth.core.errors import DependencyError
         raise DependencyError("skimage", "tuning", "the SSIM metric")
     ref, est, valid = _prepare(reference, estimate)
     filled_ref = np.where(valid, ref, est)

@@ -19,12 +19,12 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from uav_depth.daemon.disparity import DisparityPipeline, DisparityResult
-from uav_depth.daemon.errors import ParameterWarning
-from uav_depth.daemon.params import StereoParams, params_from_dict
+from uav_depth.core.disparity import DisparityPipeline, DisparityResult
+from uav_depth.core.errors import ParameterWarning
+from uav_depth.core.params import StereoParams, params_from_dict
 
-from . import metrics
-from .frames import FrameData, FrameSet
+from uav_depth.tuning import metrics
+from uav_depth.tuning.frames import FrameData, FrameSet
 
 OK, FAILED = "ok", "failed"
 
@@ -64,8 +64,8 @@ def _ref(fn: Callable[[np.ndarray, np.ndarray], float]) -> Callable[[FrameData, 
 
 def _branch(frame: FrameData, res: DisparityResult, params: StereoParams) -> float:
     """The daemon's own ranging stage on this result, against the frame's truth."""
-    from uav_depth.daemon.calibration import Calibration
-    from uav_depth.daemon.config import RangingConfig
+    from uav_depth.core.calibration import Calibration
+    from uav_depth.daemon.ranging import RangingConfig
     from uav_depth.daemon.ranging import Ranger, resolve_roi
 
     h, w = frame.left.shape[:2]

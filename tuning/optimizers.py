@@ -23,9 +23,9 @@ from typing import Any, Callable, Protocol, Sequence
 
 import numpy as np
 
-from uav_depth.daemon.params import StereoParams
+from uav_depth.core.params import StereoParams
 
-from .space import PaperSpace, SchemaSpace, Space
+from uav_depth.tuning.space import PaperSpace, SchemaSpace, Space
 
 
 class Optimizer(Protocol):
@@ -43,7 +43,7 @@ GA_LOCAL_SIGMA = 0.1
 def _ga():
     """The GA module, imported on use: it needs DEAP (the ``tuning`` extra), and merely listing the
     optimisers (``uav-depth --help`` on the drone's base install) must not."""
-    from . import ga
+    from uav_depth.tuning import ga
 
     return ga
 

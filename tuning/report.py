@@ -24,12 +24,12 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import yaml
 
-from uav_depth.daemon.disparity import DisparityPipeline
-from uav_depth.daemon.params import StereoParams
-from uav_depth.daemon.session import colourise
+from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.core.params import StereoParams
+from uav_depth.core.session import colourise
 
-from .frames import FrameSet
-from .objective import FITNESS, Evaluation
+from uav_depth.tuning.frames import FrameSet
+from uav_depth.tuning.objective import FITNESS, Evaluation
 
 #: The paper's reported change of its tuned parameters against its manual configuration, %.
 PAPER_CHANGE = {"mse": -42.86, "psnr": 8.47, "ssim": 28.52}

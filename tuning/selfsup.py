@@ -34,10 +34,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from uav_depth.daemon.disparity import check_pair
-from uav_depth.daemon.errors import FrameError
+from uav_depth.core.disparity import check_pair
+from uav_depth.core.errors import FrameError
 
-from .metrics import Box, in_box
+from uav_depth.tuning.metrics import Box, in_box
 
 #: SSIM vs L1 mix of the photometric term (Monodepth, Monodepth2).
 ALPHA = 0.85

@@ -3,7 +3,7 @@
 Two spaces, one contract (:class:`Space`): ``sample(rng)`` draws a genome,
 ``decode(genome)`` returns the parameter *changes* (dotted schema keys) it
 stands for, ``encode(params)`` goes back. Every range comes from
-:data:`uav_depth.daemon.params.SPECS`; nothing here restates one. Candidates
+:data:`uav_depth.core.params.SPECS`; nothing here restates one. Candidates
 are always built with ``base.replace(**changes)``, so the daemon's own schema
 validates each one, and keys a space does not tune keep the base values (new
 schema keys included).
@@ -24,8 +24,8 @@ from typing import Any, Mapping, Protocol, Sequence
 
 import numpy as np
 
-from uav_depth.daemon.errors import ConfigError
-from uav_depth.daemon.params import (OPENCV_COST_MAX, OPENCV_PRE_FILTER_CAP_FLOOR, SPEC_BY_KEY, SPECS, Spec,
+from uav_depth.core.errors import ConfigError
+from uav_depth.core.params import (OPENCV_COST_MAX, OPENCV_PRE_FILTER_CAP_FLOOR, SPEC_BY_KEY, SPECS, Spec,
                                      StereoParams)
 
 

@@ -26,9 +26,9 @@ import time
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping
 
-from uav_depth.daemon.errors import FileFormatError
+from uav_depth.core.errors import FileFormatError
 
-from .objective import Evaluation
+from uav_depth.tuning.objective import Evaluation
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);

@@ -25,16 +25,16 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from uav_depth.daemon.disparity import DisparityPipeline
-from uav_depth.daemon.errors import ConfigError, UavDepthError
-from uav_depth.daemon.params import StereoParams, params_from_dict
+from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.core.errors import ConfigError, UavDepthError
+from uav_depth.core.params import StereoParams, params_from_dict
 
-from .executor import Executor, run_all
-from .frames import FrameSet
-from .objective import FITNESS, OK, Evaluation, Task, failed
-from .optimizers import OPTIMIZERS, make_space
-from .space import describe_space
-from .store import RunStore
+from uav_depth.tuning.executor import Executor, run_all
+from uav_depth.tuning.frames import FrameSet
+from uav_depth.tuning.objective import FITNESS, OK, Evaluation, Task, failed
+from uav_depth.tuning.optimizers import OPTIMIZERS, make_space
+from uav_depth.tuning.space import describe_space
+from uav_depth.tuning.store import RunStore
 
 #: Bump when the meaning of an evaluation changes: old cached evaluations are then not reused.
 #: 2: candidates with a compute.roi are scored inside it (1 counted the unanswered rest as errors).

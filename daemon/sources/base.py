@@ -8,8 +8,8 @@ from typing import Any, Mapping, Protocol
 
 import numpy as np
 
-from ..calibration import Calibration
-from ..errors import SourceError
+from uav_depth.core.calibration import Calibration
+from uav_depth.core.errors import SourceError
 
 
 class EndOfStream(SourceError):

@@ -23,15 +23,16 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..calibration import Calibration
-from ..config import Key, section_values
-from ..errors import DependencyError, SourceError
-from .base import Frame
+from uav_depth.core.calibration import Calibration
+from uav_depth.core.keys import Key, section_values
+from uav_depth.core.errors import DependencyError, SourceError
+from uav_depth.daemon.sources.base import Frame
 
 
 @dataclass(frozen=True)
 class Config:
     KIND = "oak"
+    SOURCE_CLASS = "OakSource"      # the class create_source() builds from this config
     KEYS = (
         Key("device_id", "str", None, "device id (MxId / serial) to open; null: the first device found",
             optional=True),

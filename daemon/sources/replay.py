@@ -16,11 +16,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from ..calibration import Calibration
-from ..config import Key, section_values
-from ..errors import FileFormatError, SourceError
-from ..session import FrameRecord, find_sessions
-from .base import EndOfStream, Frame
+from uav_depth.core.calibration import Calibration
+from uav_depth.core.keys import Key, section_values
+from uav_depth.core.errors import FileFormatError, SourceError
+from uav_depth.core.session import FrameRecord, find_sessions
+from uav_depth.daemon.sources.base import EndOfStream, Frame
 
 DEFAULT_RATE_HZ = 10.0
 log = logging.getLogger("uav_depth.sources.replay")
@@ -29,6 +29,7 @@ log = logging.getLogger("uav_depth.sources.replay")
 @dataclass(frozen=True)
 class Config:
     KIND = "replay"
+    SOURCE_CLASS = "ReplaySource"      # the class create_source() builds from this config
     KEYS = (
         Key("path", "path", None, "a session or a directory of sessions (log layout)"),
         Key("rate_hz", "float", None, "frames per second; null: recorded time_s, else 10", 0.01, 1000.0,

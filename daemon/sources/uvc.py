@@ -24,10 +24,10 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..calibration import Calibration
-from ..config import Key, section_values
-from ..errors import CalibrationError, ConfigError, SourceError
-from .base import Frame
+from uav_depth.core.calibration import Calibration
+from uav_depth.core.keys import Key, section_values
+from uav_depth.core.errors import CalibrationError, ConfigError, SourceError
+from uav_depth.daemon.sources.base import Frame
 
 
 def _check_device(value: Any) -> str | None:
@@ -39,6 +39,7 @@ def _check_device(value: Any) -> str | None:
 @dataclass(frozen=True)
 class Config:
     KIND = "uvc"
+    SOURCE_CLASS = "UvcSource"      # the class create_source() builds from this config
     KEYS = (
         Key("device", "any", 0, "V4L2 index or path of the (side-by-side) camera", check=_check_device,
             accepts="index or /dev path"),

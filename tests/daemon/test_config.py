@@ -7,8 +7,9 @@ import pytest
 
 from uav_depth.daemon.config import (MavlinkConfig, RangingConfig, env_keys, load_run_config, reference_markdown,
                                      run_config_from_dict, SECTION_CLASSES)
-from uav_depth.daemon.errors import ConfigError
-from uav_depth.daemon.sources import SOURCES, source_keys
+from uav_depth.core.errors import ConfigError
+from uav_depth.cli.sources import SOURCES
+from uav_depth.daemon.sources import source_keys
 
 ROOT = Path(__file__).resolve().parents[2]
 SYNTH = {"kind": "synthetic", "scene": {"width": 320, "height": 240, "focal_px": 200.0}}
@@ -21,7 +22,7 @@ def write(tmp_path, text, name="run.yaml"):
 
 
 def test_defaults_are_the_documented_ones():
-    cfg = run_config_from_dict({"source": SYNTH})
+    cfg = run_config_from_dict({"source": SYNTH}, sources=SOURCES)
     assert cfg.source_kind == "synthetic"
     assert cfg.params_file is None and cfg.calibration is None and cfg.logging.dir is None
     assert cfg.mavlink == MavlinkConfig()
@@ -33,17 +34,17 @@ def test_defaults_are_the_documented_ones():
 
 @pytest.mark.parametrize("example", sorted(p.name for p in (ROOT / "deploy" / "examples").glob("*.yaml")))
 def test_deploy_examples_validate(example):
-    cfg = load_run_config(ROOT / "deploy" / "examples" / example, environ={})
+    cfg = load_run_config(ROOT / "deploy" / "examples" / example, environ={}, sources=SOURCES)
     assert cfg.source_kind in SOURCES
 
 
 def test_precedence_argument_over_environment_over_file(tmp_path):
     path = write(tmp_path, "source: {kind: synthetic}\nmavlink: {rate_hz: 12, url: 'udpout:127.0.0.1:1'}\n")
-    assert load_run_config(path, environ={}).mavlink.rate_hz == 12
+    assert load_run_config(path, environ={}, sources=SOURCES).mavlink.rate_hz == 12
     env = {"UAV_DEPTH_MAVLINK_RATE_HZ": "25", "UAV_DEPTH_MAVLINK_URL": "udpin:0.0.0.0:14560"}
-    cfg = load_run_config(path, environ=env)
+    cfg = load_run_config(path, environ=env, sources=SOURCES)
     assert cfg.mavlink.rate_hz == 25 and cfg.mavlink.url == "udpin:0.0.0.0:14560"
-    cfg = load_run_config(path, overrides={"mavlink.rate_hz": 30}, environ=env)
+    cfg = load_run_config(path, overrides={"mavlink.rate_hz": 30}, environ=env, sources=SOURCES)
     assert cfg.mavlink.rate_hz == 30 and cfg.mavlink.url == "udpin:0.0.0.0:14560"
 
 
@@ -51,14 +52,14 @@ def test_config_file_from_environment_and_relative_paths(tmp_path):
     (tmp_path / "calib.yaml").write_text("focal_px: 200.0\nbaseline_m: 0.06\nwidth: 320\nheight: 240\n")
     path = write(tmp_path, "source: {kind: replay, path: logs/s1}\ncalibration: calib.yaml\n"
                            "params_file: p.yaml\nlogging: {dir: logs}\n")
-    cfg = load_run_config(None, environ={"UAV_DEPTH_CONFIG": str(path)})
+    cfg = load_run_config(None, environ={"UAV_DEPTH_CONFIG": str(path)}, sources=SOURCES)
     assert cfg.source.path == tmp_path / "logs" / "s1"
     assert cfg.params_file == tmp_path / "p.yaml" and cfg.logging.dir == tmp_path / "logs"
     assert cfg.calibration.focal_px == 200.0 and cfg.calibration.baseline_m == 0.06
 
 
 def test_every_settable_key_has_an_environment_name():
-    names = env_keys()
+    names = env_keys(SOURCES)
     assert names["UAV_DEPTH_PARAMS_FILE"] == "params_file"
     assert names["UAV_DEPTH_RANGING_MAX_AGE_MS"] == "ranging.max_age_ms"
     assert names["UAV_DEPTH_SOURCE_KIND"] == "source.kind"
@@ -70,7 +71,7 @@ def test_every_settable_key_has_an_environment_name():
 def test_unknown_environment_variable_is_logged_not_fatal(tmp_path, caplog):
     path = write(tmp_path, "source: {kind: synthetic}\n")
     with caplog.at_level(logging.WARNING, logger="uav_depth.config"):
-        load_run_config(path, environ={"UAV_DEPTH_MAVLNK_URL": "x"})
+        load_run_config(path, environ={"UAV_DEPTH_MAVLNK_URL": "x"}, sources=SOURCES)
     assert "UAV_DEPTH_MAVLNK_URL" in caplog.text
 
 
@@ -100,7 +101,7 @@ def test_unknown_environment_variable_is_logged_not_fatal(tmp_path, caplog):
         "same-devices", "device", "every-n", "calibration"])
 def test_bad_config_names_key_rule_and_value(data, message):
     with pytest.raises(ConfigError) as info:
-        run_config_from_dict(data, source="run.yaml")
+        run_config_from_dict(data, source="run.yaml", sources=SOURCES)
     assert message in str(info.value)
     assert str(info.value).count("\n") == 0
 
@@ -108,40 +109,40 @@ def test_bad_config_names_key_rule_and_value(data, message):
 def test_errors_say_where_the_value_came_from(tmp_path):
     path = write(tmp_path, "source: {kind: synthetic}\n")
     with pytest.raises(ConfigError, match=r"^environment UAV_DEPTH_MAVLINK_RATE_HZ: mavlink.rate_hz must be a number"):
-        load_run_config(path, environ={"UAV_DEPTH_MAVLINK_RATE_HZ": "fast"})
+        load_run_config(path, environ={"UAV_DEPTH_MAVLINK_RATE_HZ": "fast"}, sources=SOURCES)
     with pytest.raises(ConfigError, match=r"^command line: ranging.max_age_ms must be at least 1 and below 500"):
-        load_run_config(path, overrides={"ranging.max_age_ms": 900}, environ={})
+        load_run_config(path, overrides={"ranging.max_age_ms": 900}, environ={}, sources=SOURCES)
     bad = write(tmp_path, "source: {kind: synthetic}\nmavlink: {rate_hz: 1}\n", "bad.yaml")
     with pytest.raises(ConfigError, match=r"bad.yaml: mavlink.rate_hz must be between 2 and 200, but got 1"):
-        load_run_config(bad, environ={})
+        load_run_config(bad, environ={}, sources=SOURCES)
 
 
 def test_invalid_yaml_and_missing_file(tmp_path):
     with pytest.raises(ConfigError, match="must be valid YAML at line 3"):
-        load_run_config(write(tmp_path, "source:\n  kind: [synthetic\n"), environ={})
+        load_run_config(write(tmp_path, "source:\n  kind: [synthetic\n"), environ={}, sources=SOURCES)
     with pytest.raises(ConfigError, match="--config must name an existing file"):
-        load_run_config(tmp_path / "nope.yaml", environ={})
+        load_run_config(tmp_path / "nope.yaml", environ={}, sources=SOURCES)
 
 
 @pytest.mark.parametrize("name,code", [("forward", 0), ("down", 25), ("up", 24), ("back", 4), ("ROLL_180", 8),
                                        (3, 3)])
 def test_orientation_names(name, code):
-    from uav_depth.daemon.mavlink_out import orientation_code
+    from uav_depth.daemon.mavlink_enums import orientation_code
 
     assert orientation_code(name) == code
-    assert run_config_from_dict({"source": SYNTH, "mavlink": {"orientation": name}}).mavlink.orientation == name
+    assert run_config_from_dict({"source": SYNTH, "mavlink": {"orientation": name}}, sources=SOURCES).mavlink.orientation == name
 
 
 def test_reference_documents_every_key():
-    table = reference_markdown()
+    table = reference_markdown(SOURCES)
     for section, cls in SECTION_CLASSES.items():
         for key in cls.KEYS:
             assert f"`{section}.{key.name}`" in table
     for kind in SOURCES:
-        for key in source_keys(kind):
+        for key in source_keys(kind, SOURCES):
             assert f"`source.{key.name}` ({kind})" in table
 
 
 def test_readme_config_reference_is_the_generated_table():
     readme = (ROOT / "README.md").read_text()
-    assert reference_markdown() in readme, "README's config reference is stale: paste reference_markdown()"
+    assert reference_markdown(SOURCES) in readme, "README's config reference is stale: paste reference_markdown(SOURCES)"

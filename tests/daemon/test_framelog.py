@@ -6,10 +6,10 @@ import time
 import numpy as np
 import pytest
 
-from uav_depth.daemon.calibration import Calibration
+from uav_depth.core.calibration import Calibration
 from uav_depth.daemon.config import LoggingConfig
 from uav_depth.daemon.framelog import FrameLogger, tree_size
-from uav_depth.daemon.session import find_sessions, iter_frames
+from uav_depth.core.session import find_sessions, iter_frames
 
 CALIB = Calibration(focal_px=200.0, baseline_m=0.063, width=64, height=48)
 

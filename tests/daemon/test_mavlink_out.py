@@ -6,7 +6,7 @@ import time
 import pytest
 
 from uav_depth.daemon.config import MavlinkConfig
-from uav_depth.daemon.errors import ConfigError
+from uav_depth.core.errors import ConfigError
 from uav_depth.daemon.mavlink_out import (MavlinkLink, SendClock, distance_report, load_signing_key,
                                           orientation_code)
 from uav_depth.daemon.ranging import Estimate, Measurement, RangeLimits

@@ -6,13 +6,13 @@ import math
 import numpy as np
 import pytest
 
-from uav_depth.daemon.calibration import Calibration
-from uav_depth.daemon.config import RangingConfig
-from uav_depth.daemon.disparity import DisparityPipeline, DisparityResult
-from uav_depth.daemon.errors import ConfigError
-from uav_depth.daemon.params import DEFAULT_PARAMS
+from uav_depth.core.calibration import Calibration
+from uav_depth.daemon.ranging import RangingConfig
+from uav_depth.core.disparity import DisparityPipeline, DisparityResult
+from uav_depth.core.errors import ConfigError
+from uav_depth.core.params import DEFAULT_PARAMS
 from uav_depth.daemon.ranging import OutlierGate, Ranger, default_roi, resolve_roi
-from uav_depth.daemon.scene import Scene, SceneConfig
+from uav_depth.sim.scene import Scene, SceneConfig
 
 PARAMS = DEFAULT_PARAMS.replace(**{"sgbm.num_disparities": 64})
 
@@ -114,7 +114,7 @@ def test_limits_and_uncertainty_follow_the_matching_scale():
 def test_flight_parameters_range_the_branch():
     """The deploy flight file's levers (centre ROI, half scale, grey, 3-way) measure as well."""
     from pathlib import Path
-    from uav_depth.daemon.params import load_params
+    from uav_depth.core.params import load_params
 
     flight = load_params(Path(__file__).resolve().parents[2] / "deploy" / "params-flight.yaml")
     cfg = SceneConfig(width=1280, height=720, focal_px=700.0, branch_distance_m=1.2, seed=5)

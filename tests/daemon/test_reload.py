@@ -5,7 +5,7 @@ import time
 
 import pytest
 
-from uav_depth.daemon.params import DEFAULT_PARAMS, save_params
+from uav_depth.core.params import DEFAULT_PARAMS, save_params
 from uav_depth.daemon.reload import FileWatcher
 
 

@@ -19,9 +19,10 @@ import numpy as np
 import pytest
 import yaml
 
-from uav_depth.daemon.cli import EXIT_CONFIG, EXIT_UNAVAILABLE
-from uav_depth.daemon.params import DEFAULT_PARAMS, atomic_write_text, save_params
-from uav_depth.daemon.scene import Pose, Scene, SceneConfig
+from uav_depth.cli.main import EXIT_CONFIG, EXIT_UNAVAILABLE
+from uav_depth.core.fileio import atomic_write_text
+from uav_depth.core.params import DEFAULT_PARAMS, save_params
+from uav_depth.sim.scene import Pose, Scene, SceneConfig
 
 from mavlink_peer import free_port
 
@@ -78,7 +79,7 @@ class Daemon:
         self.config_path.write_text(yaml.safe_dump(config))
         self.stderr_path = tmp_path / "daemon.stderr"
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "uav_depth.daemon.cli", "run", "--config", str(self.config_path)],
+            [sys.executable, "-m", "uav_depth.cli.main", "run", "--config", str(self.config_path)],
             stdout=subprocess.DEVNULL, stderr=open(self.stderr_path, "w"),
             env={**os.environ, "PYTHONDONTWRITEBYTECODE": "1", **(env or {})}, preexec_fn=preexec_fn)
 
@@ -170,7 +171,7 @@ def test_static_branch_rate_distance_fields_notify_shutdown_and_logs(tmp_path, r
     assert any(line.startswith("STATUS=") and "fps" in line for line in lines)
     assert "STOPPING=1" in lines
 
-    out = subprocess.run([sys.executable, "-m", "uav_depth.daemon.cli", "evaluate", str(logs), "--json"],
+    out = subprocess.run([sys.executable, "-m", "uav_depth.cli.main", "evaluate", str(logs), "--json"],
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout)
@@ -264,7 +265,7 @@ def run_cli(tmp_path, config, timeout=60):
     path = tmp_path / "run.yaml"
     path.write_text(yaml.safe_dump(config))
     start = time.monotonic()
-    proc = subprocess.run([sys.executable, "-m", "uav_depth.daemon.cli", "run", "--config", str(path)],
+    proc = subprocess.run([sys.executable, "-m", "uav_depth.cli.main", "run", "--config", str(path)],
                           capture_output=True, text=True, timeout=timeout)
     return proc, time.monotonic() - start
 

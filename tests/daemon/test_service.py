@@ -5,10 +5,12 @@ import time
 
 import pytest
 
+from uav_depth.cli.sources import SOURCES
 from uav_depth.daemon.config import run_config_from_dict
-from uav_depth.daemon.errors import ConfigError, SourceError
-from uav_depth.daemon.params import DEFAULT_PARAMS, atomic_write_text, save_params
-from uav_depth.daemon.scene import Pose
+from uav_depth.core.errors import ConfigError, SourceError
+from uav_depth.core.fileio import atomic_write_text
+from uav_depth.core.params import DEFAULT_PARAMS, save_params
+from uav_depth.sim.scene import Pose
 from uav_depth.daemon.service import Service, check_roi_against_compute
 
 
@@ -24,7 +26,7 @@ def config(rx, **sections):
                         "frame_timeout_s": 0.5, "params_poll_s": 0.1}}
     for k, v in sections.items():
         data[k] = {**data.get(k, {}), **v} if isinstance(v, dict) and k != "source" else v
-    return run_config_from_dict(data)
+    return run_config_from_dict(data, sources=SOURCES)
 
 
 class Running:
@@ -162,7 +164,7 @@ class HangingSource:
     def __init__(self):
         import numpy as np
 
-        from uav_depth.daemon.scene import Scene, SceneConfig
+        from uav_depth.sim.scene import Scene, SceneConfig
         from uav_depth.daemon.sources import Frame
 
         cfg = SceneConfig(**SCENE)

@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 
 from uav_depth.daemon.config import run_config_from_dict
-from uav_depth.daemon.errors import CalibrationError, SourceError
-from uav_depth.daemon.rectify import Rectifier
-from uav_depth.daemon.scene import Pose, SceneConfig, write_session
-from uav_depth.daemon.sources import SOURCES, EndOfStream, create_source
-from uav_depth.daemon.sources.synthetic import SyntheticSource
+from uav_depth.core.errors import CalibrationError, SourceError
+from uav_depth.core.rectify import Rectifier
+from uav_depth.sim.scene import Pose, SceneConfig, write_session
+from uav_depth.cli.sources import SOURCES
+from uav_depth.daemon.sources import EndOfStream, create_source
+from uav_depth.sim.source import SyntheticSource
 from uav_depth.daemon.sources.uvc import read_zed_conf, split_side_by_side
 
 SCENE = {"width": 320, "height": 240, "focal_px": 200.0, "branch_distance_m": 1.0, "seed": 4}
@@ -27,12 +28,12 @@ class FakeClock:
 
 
 def source_config(**source):
-    return run_config_from_dict({"source": source}).source
+    return run_config_from_dict({"source": source}, sources=SOURCES).source
 
 
 def test_table_names_and_cli_listing():
     assert list(SOURCES) == ["synthetic", "replay", "uvc", "oak"]
-    out = subprocess.run([sys.executable, "-m", "uav_depth.daemon.cli", "sources", "--keys"], capture_output=True,
+    out = subprocess.run([sys.executable, "-m", "uav_depth.cli.main", "sources", "--keys"], capture_output=True,
                          text=True, timeout=60, check=True).stdout
     for kind in SOURCES:
         assert out.count(f"\n{kind} ") + out.startswith(f"{kind} ") == 1

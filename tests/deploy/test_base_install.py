@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from uav_depth.daemon.cli import COMMANDS
-from uav_depth.daemon.errors import EXTRA_OF_MODULE
+from uav_depth.cli.main import COMMANDS
+from uav_depth.core.errors import EXTRA_OF_MODULE
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -52,7 +52,7 @@ class Block(importlib.abc.MetaPathFinder):
         if name.split(".")[0] in blocked:
             raise ModuleNotFoundError(f"No module named {name!r}", name=name)
 sys.meta_path.insert(0, Block())
-from uav_depth.daemon.cli import main
+from uav_depth.cli.main import main
 sys.exit(main(sys.argv[2:]))
 """
 
@@ -85,7 +85,7 @@ def test_the_daemon_flies_a_replay_without_the_extras(tmp_path):
     import yaml
 
     from mavlink_peer import free_port
-    from uav_depth.daemon.scene import SceneConfig, write_session
+    from uav_depth.sim.scene import SceneConfig, write_session
 
     write_session(tmp_path / "s", 3, 1, SceneConfig(width=320, height=240, focal_px=200.0))
     config = tmp_path / "run.yaml"

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from uav_depth.cli.sources import SOURCES
 from uav_depth.daemon.config import load_run_config
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "deploy" / "examples"
@@ -16,7 +17,7 @@ KINDS = {"zed-mini": "uvc", "oak-d": "oak", "sitl": "synthetic"}
 
 @pytest.mark.parametrize("name", sorted(KINDS))
 def test_example_validates_and_uses_the_state_directory(name):
-    config = load_run_config(EXAMPLES / f"{name}.yaml", environ={})
+    config = load_run_config(EXAMPLES / f"{name}.yaml", environ={}, sources=SOURCES)
     assert config.source_kind == KINDS[name]
     # ProtectSystem=strict leaves only /var/lib/uav-depth writable: the tuned parameters and logs live there.
     assert str(config.params_file) == "/var/lib/uav-depth/params.yaml"
@@ -33,7 +34,7 @@ def test_examples_are_all_offered():
 
 
 def test_sitl_example_checks_under_uav_depth_sitl():
-    proc = subprocess.run([sys.executable, "-m", "uav_depth.daemon.cli", "sitl", "--config",
+    proc = subprocess.run([sys.executable, "-m", "uav_depth.cli.main", "sitl", "--config",
                            str(EXAMPLES / "sitl.yaml"), "--check"], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
     assert "source synthetic" in proc.stdout and "tree 3 m in front of the start pose" in proc.stdout

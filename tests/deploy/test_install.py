@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from uav_depth.daemon.cli import EXIT_CONFIG
+from uav_depth.cli.main import EXIT_CONFIG
 
 REPO = Path(__file__).resolve().parents[2]
 DEPLOY = REPO / "deploy"
@@ -223,7 +223,7 @@ def test_installed_venv_runs_from_its_final_path(installed):
              "print(m.version('uav-depth')); "
              "print([e.value for e in m.entry_points(group='console_scripts') if e.name == 'uav-depth'])")
     out = subprocess.run([str(py), "-c", probe], capture_output=True, text=True, check=True, timeout=60).stdout
-    assert out.split("\n")[:2] == ["0.1.0", "['uav_depth.daemon.cli:entry']"]
+    assert out.split("\n")[:2] == ["0.1.0", "['uav_depth.cli.main:entry']"]
 
 
 def test_second_install_keeps_the_config_and_changes_nothing_else(installed, wheel, tmp_path):

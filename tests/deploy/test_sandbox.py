@@ -92,7 +92,7 @@ def free_udp_port() -> int:
 
 
 def test_daemon_runs_inside_the_units_sandbox(tmp_path):
-    from uav_depth.daemon.mavlink_out import mavutil
+    from uav_depth.daemon.mavlink_enums import mavutil
 
     settings = unit_settings()
     assert settings["SystemCallErrorNumber"] == ["EPERM"], "the test emulates EPERM answers"
@@ -122,7 +122,7 @@ def test_daemon_runs_inside_the_units_sandbox(tmp_path):
     trace = tmp_path / "trace"
     inject = "!" + ",".join("?" + s for s in sorted(allowed))
     cmd = ["strace", "-f", "-qq", "-o", str(trace), "-e", "trace=all", "-e", f"inject={inject}:error=EPERM",
-           sys.executable, "-m", "uav_depth.daemon.cli", "run", "--config", str(cfg)]
+           sys.executable, "-m", "uav_depth.cli.main", "run", "--config", str(cfg)]
     listener = mavutil().mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=250)
     proc = subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     valid = 0

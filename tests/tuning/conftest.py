@@ -7,8 +7,8 @@ import functools
 import numpy as np
 import pytest
 
-from uav_depth.daemon.params import DEFAULT_PARAMS
-from uav_depth.daemon.scene import Scene, SceneConfig, write_session
+from uav_depth.core.params import DEFAULT_PARAMS
+from uav_depth.sim.scene import Scene, SceneConfig, write_session
 from uav_depth.tuning.frames import FrameData, FrameSet
 
 TINY = dict(width=256, height=192, focal_px=160.0)
@@ -37,7 +37,7 @@ def tiny_frames() -> FrameSet:
 @pytest.fixture(scope="session")
 def tiny_session(tmp_path_factory):
     """A 4-frame 256x192 synthetic session on disk (log layout) and a base parameter file for it."""
-    from uav_depth.daemon.params import save_params
+    from uav_depth.core.params import save_params
 
     root = tmp_path_factory.mktemp("tune")
     write_session(root / "s", 4, 5, SceneConfig(**TINY))

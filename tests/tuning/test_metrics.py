@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from skimage.metrics import mean_squared_error, peak_signal_noise_ratio, structural_similarity
 
-from uav_depth.daemon.disparity import DisparityPipeline
-from uav_depth.daemon.params import DEFAULT_PARAMS
+from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.core.params import DEFAULT_PARAMS
 from uav_depth.tuning import metrics
 
 

@@ -6,7 +6,7 @@ import random
 import numpy as np
 import pytest
 
-from uav_depth.daemon.params import DEFAULT_PARAMS
+from uav_depth.core.params import DEFAULT_PARAMS
 from uav_depth.tuning import ga
 from uav_depth.tuning.optimizers import OPTIMIZERS, make_space
 from uav_depth.tuning.space import PaperSpace, SchemaSpace

@@ -12,10 +12,10 @@ import cv2
 import numpy as np
 import pytest
 
-from uav_depth.daemon.errors import ConfigError, FileFormatError
-from uav_depth.daemon.scene import SceneConfig, write_session
-from uav_depth.daemon.session import Session, SessionWriter, iter_frames, write_pfm
-from uav_depth.daemon.calibration import Calibration
+from uav_depth.core.errors import ConfigError, FileFormatError
+from uav_depth.sim.scene import SceneConfig, write_session
+from uav_depth.core.session import Session, SessionWriter, iter_frames, write_pfm
+from uav_depth.core.calibration import Calibration
 from uav_depth.tuning.reference import read_provenance, summarize_references
 from uav_depth.tuning.reference.check import check_reference_scale, nice_scale
 from uav_depth.tuning.reference.importer import ImportConfig, import_references
@@ -219,7 +219,7 @@ def test_summary_for_reports(session, tmp_path):
 
 
 def cli(*args):
-    return subprocess.run([sys.executable, "-m", "uav_depth.daemon.cli", *map(str, args)], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "uav_depth.cli.main", *map(str, args)], capture_output=True,
                           text=True, timeout=300)
 
 

@@ -20,10 +20,10 @@ import onnxruntime
 import pytest
 from onnx import TensorProto, helper
 
-from uav_depth.daemon.calibration import Calibration
-from uav_depth.daemon.errors import ConfigError, FileFormatError, FrameError
-from uav_depth.daemon.scene import SceneConfig, write_session
-from uav_depth.daemon.session import SessionWriter, iter_frames
+from uav_depth.core.calibration import Calibration
+from uav_depth.core.errors import ConfigError, FileFormatError, FrameError
+from uav_depth.sim.scene import SceneConfig, write_session
+from uav_depth.core.session import SessionWriter, iter_frames
 from uav_depth.tuning.reference import read_provenance
 from uav_depth.tuning.reference.network import OnnxConfig, StereoNetwork, parse_size, run_onnx_references
 from uav_depth.tuning.reference.provenance import sha256_file
@@ -291,7 +291,7 @@ def test_cuda_provider_available_or_clear(tmp_path):
 
 
 def cli(*args):
-    return subprocess.run([sys.executable, "-m", "uav_depth.daemon.cli", *map(str, args)], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "uav_depth.cli.main", *map(str, args)], capture_output=True,
                           text=True, timeout=300)
 
 

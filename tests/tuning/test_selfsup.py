@@ -8,9 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
-from uav_depth.daemon.disparity import DisparityPipeline
-from uav_depth.daemon.errors import FrameError, ParameterWarning
-from uav_depth.daemon.params import DEFAULT_PARAMS
+from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.core.errors import FrameError, ParameterWarning
+from uav_depth.core.params import DEFAULT_PARAMS
 from uav_depth.tuning.metrics import mse
 from uav_depth.tuning.selfsup import INVALID_COST, selfsup_loss, selfsup_terms
 

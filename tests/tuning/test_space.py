@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from uav_depth.daemon.errors import ConfigError
-from uav_depth.daemon.params import (DEFAULT_PARAMS, OPENCV_COST_MAX, OPENCV_PRE_FILTER_CAP_FLOOR, SPEC_BY_KEY,
+from uav_depth.core.errors import ConfigError
+from uav_depth.core.params import (DEFAULT_PARAMS, OPENCV_COST_MAX, OPENCV_PRE_FILTER_CAP_FLOOR, SPEC_BY_KEY,
                                      SPECS, params_from_dict)
 from uav_depth.tuning.space import (DEFAULT_KEYS, PAPER_LAYOUT, PaperSpace, SchemaSpace, build, decode_number,
                                     dim_for, encode_number, parse_keys)

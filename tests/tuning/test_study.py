@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from uav_depth.daemon.errors import ConfigError
-from uav_depth.daemon.params import DEFAULT_PARAMS
+from uav_depth.core.errors import ConfigError
+from uav_depth.core.params import DEFAULT_PARAMS
 from uav_depth.tuning.executor import ProcessExecutor, SerialExecutor, make_executor, run_all
 from uav_depth.tuning.frames import FrameData, FrameSet
 from uav_depth.tuning.objective import FITNESS, Task, evaluate
@@ -162,7 +162,7 @@ def test_bad_study_config_is_clear(kw, match):
 @pytest.mark.parametrize("metric", ["mse", "ssim", "bad2", "selfsup"])
 def test_a_candidate_with_a_region_is_scored_inside_it(tiny_frames, metric):
     """The flight parameters compute only compute.roi: the unanswered rest is by design, not an error."""
-    from uav_depth.daemon.disparity import DisparityPipeline
+    from uav_depth.core.disparity import DisparityPipeline
     from uav_depth.tuning import metrics
     from uav_depth.tuning.selfsup import selfsup_loss
 

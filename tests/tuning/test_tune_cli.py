@@ -10,12 +10,12 @@ import time
 
 import pytest
 
-from uav_depth.daemon.cli import EXIT_CONFIG
-from uav_depth.daemon.params import load_params, read_provenance
+from uav_depth.cli.main import EXIT_CONFIG
+from uav_depth.core.params import load_params, read_provenance
 
 
 def cli(*args, check=True):
-    proc = subprocess.run([sys.executable, "-m", "uav_depth.daemon.cli", *map(str, args)], capture_output=True,
+    proc = subprocess.run([sys.executable, "-m", "uav_depth.cli.main", *map(str, args)], capture_output=True,
                           text=True, timeout=300)
     if check and proc.returncode != 0:
         raise AssertionError(proc.stderr)
@@ -44,7 +44,7 @@ def _count(store):
 
 
 def _start_and_wait(args, store, at_least):
-    proc = subprocess.Popen([sys.executable, "-m", "uav_depth.daemon.cli", *map(str, args)], stdout=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-m", "uav_depth.cli.main", *map(str, args)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
     deadline = time.monotonic() + 120
     while _count(store) < at_least and proc.poll() is None and time.monotonic() < deadline:

@@ -10,7 +10,7 @@
 With no reference at all, :mod:`uav_depth.tuning.selfsup` scores disparity without one.
 """
 
-from .provenance import (KINDS, describe, has_reference_to_keep, make_provenance, read_provenance,
+from uav_depth.tuning.reference.provenance import (KINDS, describe, has_reference_to_keep, make_provenance, read_provenance,
                          summarize_references, write_reference)
 
 __all__ = ["KINDS", "describe", "has_reference_to_keep", "make_provenance", "read_provenance",

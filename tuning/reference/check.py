@@ -16,8 +16,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from uav_depth.daemon.disparity import DisparityPipeline
-from uav_depth.daemon.params import DEFAULT_PARAMS, SPEC_BY_KEY
+from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.core.params import DEFAULT_PARAMS, SPEC_BY_KEY
 
 #: A reference off by this factor or more (either way) is flagged. Real scale
 #: mistakes are x2 or more (half-size maps, Middlebury's x4/x8, KITTI's x256);

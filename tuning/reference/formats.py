@@ -23,10 +23,10 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from uav_depth.daemon.errors import ConfigError, FileFormatError
-from uav_depth.daemon.session import read_pfm
+from uav_depth.core.errors import ConfigError, FileFormatError
+from uav_depth.core.session import read_pfm
 
-from .options import FORMAT_INFO
+from uav_depth.tuning.reference.options import FORMAT_INFO
 
 
 @dataclass(frozen=True)

@@ -17,12 +17,12 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from uav_depth.daemon.errors import ConfigError, FileFormatError
-from uav_depth.daemon.session import FrameRecord, find_sessions
+from uav_depth.core.errors import ConfigError, FileFormatError
+from uav_depth.core.session import FrameRecord, find_sessions
 
-from .check import RATIO_TOLERANCE, ScaleCheck, check_reference_scale
-from .formats import ReferenceFormat, check_scale, format_for
-from .provenance import has_reference_to_keep, make_provenance, sha256_file, write_reference
+from uav_depth.tuning.reference.check import RATIO_TOLERANCE, ScaleCheck, check_reference_scale
+from uav_depth.tuning.reference.formats import ReferenceFormat, check_scale, format_for
+from uav_depth.tuning.reference.provenance import has_reference_to_keep, make_provenance, sha256_file, write_reference
 
 
 @dataclass(frozen=True)

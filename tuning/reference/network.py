@@ -31,11 +31,11 @@ from typing import Any, Callable, Iterable, Sequence
 import cv2
 import numpy as np
 
-from uav_depth.daemon.errors import ConfigError, DependencyError, FileFormatError, FrameError
-from uav_depth.daemon.session import FrameRecord, iter_frames
+from uav_depth.core.errors import ConfigError, DependencyError, FileFormatError, FrameError
+from uav_depth.core.session import FrameRecord, iter_frames
 
-from .options import CHANNEL_ORDERS, FITS, NORMALIZATIONS, PROVIDERS, SIGNS
-from .provenance import has_reference_to_keep, make_provenance, sha256_file, write_reference
+from uav_depth.tuning.reference.options import CHANNEL_ORDERS, FITS, NORMALIZATIONS, PROVIDERS, SIGNS
+from uav_depth.tuning.reference.provenance import has_reference_to_keep, make_provenance, sha256_file, write_reference
 
 _IMAGENET_MEAN = np.array([0.485, 0.456, 0.406], np.float32)  # RGB
 _IMAGENET_STD = np.array([0.229, 0.224, 0.225], np.float32)

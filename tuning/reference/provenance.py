@@ -1,7 +1,7 @@
 """Where a reference disparity came from: the ``FRAMEID_ref.json`` file next to ``FRAMEID_ref.npy``.
 
 Every reference this package writes is a float32 ``.npy`` in px of the left image
-(NaN unknown, see :mod:`uav_depth.daemon.session`) with a JSON object beside it.
+(NaN unknown, see :mod:`uav_depth.core.session`) with a JSON object beside it.
 The one required key is ``kind``:
 
 - ``import``: an existing map attached by ``uav-depth reference import``; keys
@@ -34,8 +34,8 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from uav_depth.daemon.errors import ConfigError, FileFormatError
-from uav_depth.daemon.session import FrameRecord, write_json
+from uav_depth.core.errors import ConfigError, FileFormatError
+from uav_depth.core.session import FrameRecord, write_json
 
 #: Kinds a reference file may record, best first. ``unknown``/``none`` are what readers report.
 KINDS = ("synthetic", "import", "onnx", "device")
@@ -67,7 +67,7 @@ def make_provenance(kind: str, **fields: Any) -> dict[str, Any]:
     """A provenance object with ``kind`` first, ``created`` and ``tool`` filled in."""
     if kind not in KINDS:
         raise ConfigError("reference kind", f"must be one of {', '.join(KINDS)}", kind)
-    from uav_depth.daemon import __version__
+    from uav_depth.core import __version__
 
     return {"kind": kind, **fields, "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
             "tool": f"uav-depth {__version__}"}

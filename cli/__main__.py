@@ -1,0 +1,3 @@
+from uav_depth.cli.main import entry
+
+entry()

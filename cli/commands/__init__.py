@@ -1,0 +1,1 @@
+"""One module per ``uav-depth`` subcommand: ``configure(parser)`` and ``run(args) -> int``."""

@@ -1,0 +1,132 @@
+"""uav-depth run --config FILE: the on-board daemon (stereo -> branch distance -> MAVLink DISTANCE_SENSOR).
+
+Exit codes: 0 after a clean stop (SIGTERM, SIGINT, a replay that ended); 78
+(EX_CONFIG) when the config, calibration or parameter file is invalid, so systemd
+does not restart-loop on a typo; 69 (EX_UNAVAILABLE) when the camera is missing at
+start-up, so systemd may retry until it appears; 1 for other errors.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", metavar="FILE", help="run config (YAML); default $UAV_DEPTH_CONFIG")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="set a config key (dotted, YAML value), e.g. --set mavlink.rate_hz=25; wins over "
+                        "UAV_DEPTH_* environment variables and the file (repeatable)")
+    p.add_argument("--params-file", metavar="FILE", help="same as --set params_file=FILE")
+    p.add_argument("--mavlink-url", metavar="URL", help="same as --set mavlink.url=URL")
+    p.add_argument("--log-dir", metavar="DIR", help="same as --set logging.dir=DIR")
+    p.add_argument("--check", action="store_true", help="validate the config, print a summary and exit")
+    p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
+
+
+def overrides_from_args(args: argparse.Namespace) -> dict:
+    from uav_depth.daemon.config import parse_value
+    from uav_depth.core.errors import ConfigError
+
+    out: dict = {}
+    for item in args.overrides:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError("--set", "must look like KEY=VALUE (mavlink.rate_hz=25)", item)
+        out[key.strip()] = parse_value(value)
+    for key, value in (("params_file", args.params_file), ("mavlink.url", args.mavlink_url),
+                       ("logging.dir", args.log_dir)):
+        if value is not None:
+            out[key] = value
+    return out
+
+
+def setup_logging(level: str) -> None:
+    """Plain lines for journald (it adds time and unit); no colours, no timestamps."""
+    import logging
+    import sys
+
+    logging.basicConfig(level=getattr(logging, level.upper()), stream=sys.stderr,
+                        format="%(levelname)s %(name)s: %(message)s")
+
+
+def error_line(command: str):
+    """The one line a start-up or run failure prints: ``uav-depth run: error: ...``."""
+    import sys
+
+    return lambda exc: print(f"uav-depth {command}: error: {exc}", file=sys.stderr, flush=True)
+
+
+def serve(service, stop, command: str, cleanup=None) -> int:
+    """Run ``service`` until ``stop`` is set (SIGTERM, SIGINT); SIGUSR1 logs a frame, SIGHUP reloads.
+
+    Maps what stops it to the exit codes above; ``cleanup`` runs whatever happens.
+    The handlers only set events; the service's threads and main loop do the work.
+    """
+    import logging
+    import os
+    import signal
+    import sys
+
+    from uav_depth.cli.main import EXIT_CONFIG, EXIT_ERROR, EXIT_UNAVAILABLE
+    from uav_depth.core.errors import (CalibrationError, ConfigError, DependencyError, FileFormatError,
+                                         SourceError, UavDepthError)
+
+    err = error_line(command)
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGUSR1, lambda *_: service.request_log_frame())
+    signal.signal(signal.SIGHUP, lambda *_: service.request_reload())
+    try:
+        report = service.run(stop)
+    except (ConfigError, CalibrationError, FileFormatError, DependencyError) as exc:
+        err(exc)
+        return EXIT_CONFIG
+    except SourceError as exc:
+        err(exc)
+        return EXIT_UNAVAILABLE
+    except UavDepthError as exc:
+        err(exc)
+        return EXIT_ERROR
+    finally:
+        if cleanup is not None:
+            cleanup()
+    if service.ended:
+        logging.getLogger("uav_depth.service").info("source ended: %s", service.ended)
+    if report.abandoned:
+        # A thread left inside OpenCV would be unwound by the interpreter's exit (pthread_exit
+        # through OpenCV's catch-all handlers), which aborts the process ("FATAL: exception not
+        # rethrown", SIGABRT). Shutdown already said what it abandoned: leave without finalising.
+        logging.shutdown()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(0)
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    import threading
+
+    from uav_depth.cli.main import EXIT_CONFIG
+    from uav_depth.cli.sources import SOURCES
+    from uav_depth.daemon.config import load_run_config
+    from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError
+
+    setup_logging(args.log_level)
+    err = error_line("run")
+    try:
+        config = load_run_config(args.config, overrides_from_args(args), sources=SOURCES)
+    except (ConfigError, CalibrationError, FileFormatError) as exc:
+        err(exc)
+        return EXIT_CONFIG
+    if args.check:
+        print(f"config valid: {config.summary()}")
+        return 0
+
+    from uav_depth.daemon.service import Service
+
+    try:
+        service = Service(config)
+    except (ConfigError, CalibrationError, FileFormatError) as exc:
+        err(exc)
+        return EXIT_CONFIG
+    return serve(service, threading.Event(), "run")

@@ -1,0 +1,187 @@
+"""uav-depth tune LOGDIR: search SGBM+WLS parameters on logged frames, write a parameter file and a report."""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+DEFAULT_STORE = "uav-depth-tune.sqlite"
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    from uav_depth.tuning.objective import FITNESS
+    from uav_depth.tuning.optimizers import OPTIMIZERS
+
+    p.add_argument("logdir", help="a session or a directory of sessions (log layout)")
+    p.add_argument("--metric", choices=list(FITNESS), default="mse",
+                   help="fitness: mse, psnr, ssim, bad2 need reference disparity; branch needs branch truth "
+                        "(synthetic sessions); selfsup needs nothing (default mse)")
+    p.add_argument("--optimizer", choices=list(OPTIMIZERS), default="tpe",
+                   help="ga-paper: the paper's GA, faithful; ga: real-coded GA on the improved space from the "
+                        "base parameters; random; tpe: Optuna's TPE on the improved space (default: it generalised "
+                        "best to held-out frames in our measurements, see the README)")
+    p.add_argument("--population", type=int, default=30, help="candidates per generation (default 30, the paper's)")
+    p.add_argument("--generations", type=int, default=100, help="generations (default 100, the paper's)")
+    p.add_argument("--runs", type=int, default=1, help="independent runs, seeds derived from --seed (paper: 30)")
+    p.add_argument("--seed", type=int, default=0, help="base seed; same seed and data, same result (default 0)")
+    p.add_argument("--keys", default=None,
+                   help="schema keys the improved space tunes, comma-separated: 'default' = the paper's nine + "
+                        "sgbm.block_size, 'paper' = the nine, 'speed' = compute.scale and compute.grey (added to "
+                        "the default with --max-ms); ignored by ga-paper")
+    p.add_argument("--holdout", default=None,
+                   help="frames kept out of tuning and scored at the end: a fraction (0.3), a directory, or "
+                        "a comma list of session names / session/frame keys / frame ids")
+    p.add_argument("--base", default=None,
+                   help="parameter file the search starts from and keeps for untuned keys "
+                        "(default: the built-in manual baseline)")
+    p.add_argument("--workers", type=int, default=None, help="evaluating processes (default: all cores)")
+    p.add_argument("--ray-address", default=None,
+                   help="evaluate on Ray: 'local' starts one here, 'auto' or ray://HOST:PORT joins a cluster")
+    p.add_argument("--out", default=None, help="write the chosen parameters here (atomic, validated, provenance)")
+    p.add_argument("--report", default=None, help="write the report into this directory")
+    p.add_argument("--store", default=None,
+                   help=f"SQLite run store (default: REPORT/store.sqlite, else ./{DEFAULT_STORE})")
+    p.add_argument("--resume", action="store_true", help="continue the run held in the store")
+    p.add_argument("--max-ms", type=float, default=None,
+                   help="choose the best candidate whose frame time (re-timed here) is at most this")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _store_path(args: argparse.Namespace) -> str:
+    if args.store:
+        return args.store
+    if args.report:
+        return os.path.join(args.report, "store.sqlite")
+    return DEFAULT_STORE
+
+
+def run(args: argparse.Namespace) -> int:
+    import datetime
+    import math
+    import signal
+    import sys
+    import threading
+
+    import cv2
+    from tqdm import tqdm
+
+    from uav_depth.core import __version__
+    from uav_depth.cli.main import EXIT_ERROR, EXIT_INTERRUPTED
+    from uav_depth.core.errors import ConfigError
+    from uav_depth.core.params import DEFAULT_PARAMS, load_params, save_params
+
+    from uav_depth.tuning.executor import make_executor
+    from uav_depth.tuning.frames import load_split
+    from uav_depth.tuning.objective import FITNESS
+    from uav_depth.tuning.report import MANUAL_BASELINE, comparison, sources_text, write_report
+    from uav_depth.tuning.space import describe_space, parse_keys
+    from uav_depth.tuning.store import RunStore
+    from uav_depth.tuning.study import (Study, StudyConfig, TuneInterrupted, choose_under_budget, full_scores, result_summary,
+                         search_front)
+
+    if args.max_ms is not None and not args.max_ms > 0:
+        raise ConfigError("--max-ms", "must be greater than 0", args.max_ms)
+    keys = parse_keys(args.keys, speed=args.max_ms is not None)
+    config = StudyConfig(metric=args.metric, optimizer=args.optimizer, population=args.population,
+                         generations=args.generations, runs=args.runs, seed=args.seed, keys=keys)
+    fitness = FITNESS[args.metric]
+    base = load_params(args.base) if args.base else DEFAULT_PARAMS
+    train, holdout = load_split(args.logdir, args.holdout, fitness.needs)
+    framesets = {"train": train, "holdout": holdout}
+    store = RunStore(_store_path(args))
+
+    # Signal handlers only set the event; the study stops at the next result and
+    # keeps every finished evaluation. A second Ctrl-C interrupts at once.
+    stop = threading.Event()
+
+    def _on_signal(signum, frame):
+        stop.set()
+        signal.signal(signum, signal.SIG_DFL if signum != signal.SIGINT else signal.default_int_handler)
+
+    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    total = config.runs * config.budget + 1
+    best = {"u": -math.inf}
+    try:
+        with tqdm(total=total, unit="cand", disable=True if args.no_progress else None, dynamic_ncols=True,
+                  desc=f"tune {args.metric}") as bar:
+            def progress(n: int, value: float) -> None:
+                bar.update(n)
+                if not math.isnan(value) and fitness.utility(value) > best["u"]:
+                    best["u"] = fitness.utility(value)
+                    bar.set_postfix_str(f"best {args.metric} {value:.4g}")
+
+            executor = make_executor(framesets, args.metric, args.workers, args.ray_address)
+            try:
+                study = Study(config, train, executor, store, base, progress=progress, stop=stop)
+                study.open(args.resume)
+                result = study.run()
+                bar.close()
+                tuned = result.best_params()
+                chosen, chosen_value, budget = tuned, result.best.best_value, None
+                front = search_front(store, args.metric)
+                if args.max_ms is not None:
+                    choice = choose_under_budget(store, args.metric, train, args.max_ms)
+                    budget = {"max_ms": args.max_ms, "front": choice.front,
+                              "chosen": None if choice.params is None else
+                              {"value": choice.value, "ms": choice.ms, "params": choice.params.to_dict()},
+                              "reason": choice.reason}
+                    if choice.params is not None:
+                        chosen, chosen_value = choice.params, choice.value
+                names = [n for n in ("train", "holdout") if len(framesets[n])]
+                scores = full_scores(executor, [base, chosen], names)
+            finally:
+                executor.close()
+    except TuneInterrupted as exc:
+        print(f"uav-depth tune: {exc}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+    cmp = comparison({n: scores[(0, n)] for n in names}, {n: scores[(1, n)] for n in names})
+    summary = result_summary(result)
+    summary.update(comparison=cmp, budget=budget or {"max_ms": None, "front": front},
+                   chosen={"value": chosen_value, "params": chosen.to_dict()},
+                   frames={n: framesets[n].keys for n in names}, store=store.path,
+                   references={n: framesets[n].reference_sources() for n in names},
+                   base=os.path.abspath(args.base) if args.base else MANUAL_BASELINE,
+                   evaluations_per_s=result.evaluated / result.wall_s if result.wall_s > 0 else None)
+    held = cmp.get("holdout", {}).get("metrics", {}).get(args.metric, {})
+    print(f"{args.optimizer} on {len(train)} train frame(s): {args.metric} base {result.baseline.value:.4g} -> "
+          f"tuned {chosen_value:.4g}"
+          + (f"; held-out ({len(holdout)}): {held['base']:.4g} -> {held['tuned']:.4g}" if held else "")
+          + f"  [{result.evaluated} evaluated, {result.cached} cached, {result.wall_s:.0f} s]")
+    if "reference" in fitness.needs:
+        print("measured against: " + "; ".join(f"{name}: {sources_text(sources)}"
+                                               for name, sources in summary["references"].items() if sources))
+    if budget and budget["reason"]:
+        print(f"uav-depth tune: error: --max-ms: {budget['reason']}", file=sys.stderr)
+    elif fitness.utility(chosen_value) < fitness.utility(result.baseline.value):
+        print(f"uav-depth tune: warning: the tuned parameters score worse than the base on the training frames "
+              f"({args.metric} {chosen_value:.4g} vs {result.baseline.value:.4g}); a larger budget or another "
+              f"--optimizer may help", file=sys.stderr)
+    if args.out and not (budget and budget["reason"]):
+        provenance = {
+            "tool": "uav-depth tune", "version": __version__, "opencv": cv2.__version__,
+            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "metric": args.metric, "fitness": chosen_value, "baseline_fitness": result.baseline.value,
+            "holdout_fitness": held.get("tuned"), "data": os.path.abspath(args.logdir),
+            "frames": len(train), "frames_digest": study.digest, "holdout": args.holdout,
+            "seed": args.seed, "optimizer": args.optimizer, "population": args.population,
+            "generations": args.generations, "runs": args.runs, "best_run": result.best.run,
+            "max_ms": args.max_ms, "store": os.path.abspath(store.path),
+            "references": summary["references"]["train"] if "reference" in fitness.needs else None}
+        save_params(chosen, args.out, provenance)
+        print(f"wrote {args.out}")
+    if args.report:
+        resolved = {"logdir": os.path.abspath(args.logdir), "holdout": args.holdout, "metric": args.metric,
+                    "optimizer": args.optimizer, "population": args.population, "generations": args.generations,
+                    "runs": args.runs, "seed": args.seed, "workers": executor.workers, "executor": executor.kind,
+                    "ray_address": args.ray_address, "max_ms": args.max_ms, "store": store.path,
+                    "space": describe_space(study.space), "base": base.to_dict(), "out": args.out,
+                    "opencv": cv2.__version__, "version": __version__}
+        points = [(ev.ms, ev.value) for _, p, ev in store.evaluations() if ev.ok and math.isfinite(ev.ms)]
+        write_report(args.report, summary, resolved, [framesets[n] for n in names], base, chosen, points)
+        print(f"wrote report {args.report}")
+    store.close()
+    return EXIT_ERROR if budget and budget["reason"] else 0

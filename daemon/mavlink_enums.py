@@ -1,0 +1,59 @@
+"""MAVLink vocabulary: pymavlink with the MAVLink 2 dialect, and the enum values the daemon sends.
+
+Kept apart from the link (:mod:`.mavlink_out`) so that the config loader can
+validate an orientation without importing the link that is built from it.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+#: Orientation names -> MAV_SENSOR_ORIENTATION. ArduPilot's RNGFND1_ORIENT must hold the same number.
+ORIENTATIONS = {"forward": 0, "right": 2, "back": 4, "backward": 4, "left": 6, "up": 24, "down": 25}
+SENSOR_TYPES = {"laser": 0, "ultrasound": 1, "infrared": 2, "radar": 3, "unknown": 4}
+SEVERITY = {"emergency": 0, "alert": 1, "critical": 2, "error": 3, "warning": 4, "notice": 5, "info": 6,
+            "debug": 7}
+MAV_TYPE_ONBOARD_CONTROLLER = 18
+MAV_AUTOPILOT_INVALID = 8
+MAV_STATE = {"boot": 1, "standby": 3, "active": 4, "critical": 5, "poweroff": 7}
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
+UINT8_UNKNOWN = 255
+STATUSTEXT_LEN = 50
+HEARTBEAT_PERIOD_S = 1.0
+
+
+def mavutil() -> Any:
+    """pymavlink's mavutil with the MAVLink 2 dialect selected.
+
+    pymavlink picks the wire protocol from the MAVLINK20 environment variable when
+    a dialect is loaded, so we set it and reload the dialect if another importer
+    loaded MAVLink 1 first. MAVLink 2 is needed for signing and the extension
+    fields (FOVs, quaternion, signal_quality) of DISTANCE_SENSOR.
+    """
+    os.environ["MAVLINK20"] = "1"
+    from pymavlink import mavutil as mu
+
+    if mu.mavlink.WIRE_PROTOCOL_VERSION != "2.0":
+        mu.set_dialect(mu.current_dialect)
+    return mu
+
+
+def orientation_code(value: Any) -> int:
+    """MAV_SENSOR_ORIENTATION number of a name (forward, down, ...), a rotation name or a number."""
+    if isinstance(value, bool):
+        raise ValueError("must be an orientation name (forward, back, left, right, up, down) or number")
+    if isinstance(value, int):
+        if 0 <= value <= 40:
+            return value
+        raise ValueError("must be a MAV_SENSOR_ORIENTATION number 0..40 (100, custom, needs a quaternion)")
+    if isinstance(value, str):
+        name = value.strip()
+        if name.lower() in ORIENTATIONS:
+            return ORIENTATIONS[name.lower()]
+        enum = mavutil().mavlink.enums["MAV_SENSOR_ORIENTATION"]
+        for code, entry in enum.items():
+            if entry.name in (name.upper(), "MAV_SENSOR_ROTATION_" + name.upper()) and code <= 40:
+                return code
+    raise ValueError("must be forward, back, left, right, up, down, a MAV_SENSOR_ROTATION name (ROLL_180) "
+                     "or a number 0..40")

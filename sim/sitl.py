@@ -1,0 +1,379 @@
+"""SITL: render the synthetic tree scene from a simulated vehicle's pose.
+
+The autopilot (ArduPilot or PX4 SITL, or the test vehicle) streams LOCAL_POSITION_NED
+and ATTITUDE; :class:`PoseTracker` keeps the latest of each and turns them into the
+pose of the virtual stereo rig in the scene's world frame, which the synthetic source
+renders. Frames involved:
+
+- NED: the autopilot's local frame (x north, y east, z down, m), LOCAL_POSITION_NED.
+- body FRD: x forward, y right, z down. ATTITUDE's roll, pitch, yaw (rad) rotate NED
+  into body in Z-Y-X order: R_ned_body = Rz(yaw) Ry(pitch) Rx(roll).
+- camera: x right, y down, z forward (OpenCV), fixed on the body, looking forward,
+  tilted up by ``camera_pitch_deg``, its (left) centre at ``camera_offset_m`` (body FRD).
+- scene world (:mod:`uav_depth.sim.scene`): the camera frame of the *anchor*, a
+  level pose facing the tree from ``scene.branch_distance_m`` away, so the target
+  branch is straight ahead of it at that distance. Without ``tree_ned_m`` the anchor
+  is the rig's start pose (levelled): the tree stands that far in front of the start.
+
+A :class:`~uav_depth.sim.scene.Pose` has the camera axes as rotation columns and
+the camera centre as position, both in world coordinates.
+"""
+
+from __future__ import annotations
+
+import collections
+import csv
+import logging
+import math
+import statistics
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from uav_depth.core.errors import ConfigError, SourceError
+from uav_depth.sim.scene import Pose
+
+log = logging.getLogger("uav_depth.sitl")
+
+#: Camera axes (columns: x right, y down, z forward) in body FRD coordinates, camera level.
+R_BODY_CAMERA = np.array([[0.0, 0.0, 1.0],
+                          [1.0, 0.0, 0.0],
+                          [0.0, 1.0, 0.0]])
+
+#: MAVLink message ids requested with MAV_CMD_SET_MESSAGE_INTERVAL.
+MSG_ATTITUDE, MSG_LOCAL_POSITION_NED = 30, 32
+
+
+def rot_x(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def rot_y(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def rot_z(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def rotation_ned_body(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """(3, 3) body FRD axes as columns in NED, from ATTITUDE's Euler angles (rad, Z-Y-X)."""
+    return rot_z(yaw) @ rot_y(pitch) @ rot_x(roll)
+
+
+@dataclass(frozen=True)
+class CameraMount:
+    """Where the (left) camera sits on the vehicle.
+
+    ``offset_m``: (3,) camera centre in body FRD, m. ``pitch_deg``: tilt of the
+    optical axis above the body's x axis, degrees (positive looks up).
+    """
+
+    offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    pitch_deg: float = 0.0
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """(3, 3) camera axes as columns in body FRD."""
+        # Rx(+a) in camera coordinates turns z toward -y, which is up.
+        return R_BODY_CAMERA @ rot_x(math.radians(self.pitch_deg))
+
+
+@dataclass(frozen=True)
+class VehicleState:
+    """The vehicle at one instant: NED position (m), Euler angles (rad), when it was received.
+
+    ``t``: monotonic seconds of the *older* of the two messages it was built from.
+    """
+
+    position_ned: tuple[float, float, float]
+    roll: float
+    pitch: float
+    yaw: float
+    t: float = 0.0
+
+    def camera(self, mount: CameraMount) -> tuple[np.ndarray, np.ndarray]:
+        """(rotation (3, 3) camera axes in NED, camera centre (3,) NED m)."""
+        r_nb = rotation_ned_body(self.roll, self.pitch, self.yaw)
+        centre = np.asarray(self.position_ned, float) + r_nb @ np.asarray(mount.offset_m, float)
+        return r_nb @ mount.rotation, centre
+
+
+@dataclass(frozen=True)
+class Anchor:
+    """The scene's world frame in NED: ``origin_ned`` (3,) m and ``rotation`` (3, 3) world axes as columns."""
+
+    origin_ned: np.ndarray
+    rotation: np.ndarray
+
+    @staticmethod
+    def facing(tree_ned: Sequence[float], yaw: float, distance_m: float) -> "Anchor":
+        """The level camera frame ``distance_m`` before ``tree_ned``, looking at it along heading ``yaw`` (rad)."""
+        heading = np.array([math.cos(yaw), math.sin(yaw), 0.0])
+        return Anchor(np.asarray(tree_ned, float) - distance_m * heading, rot_z(yaw) @ R_BODY_CAMERA)
+
+    @staticmethod
+    def at_start(state: VehicleState, mount: CameraMount) -> "Anchor":
+        """The rig's start pose, levelled (roll and pitch dropped, yaw kept)."""
+        _, centre = state.camera(mount)
+        return Anchor(centre, rot_z(state.yaw) @ R_BODY_CAMERA)
+
+    @property
+    def yaw(self) -> float:
+        """Heading of the world's optical axis (rad from north, toward east)."""
+        z = self.rotation[:, 2]
+        return math.atan2(z[1], z[0])
+
+    def to_world(self, point_ned: Sequence[float]) -> np.ndarray:
+        return self.rotation.T @ (np.asarray(point_ned, float) - self.origin_ned)
+
+    def pose(self, state: VehicleState, mount: CameraMount) -> Pose:
+        """The rig pose in the scene's world frame for ``state``."""
+        r_nc, centre = state.camera(mount)
+        return Pose(self.rotation.T @ r_nc, self.rotation.T @ (centre - self.origin_ned))
+
+
+@dataclass(frozen=True)
+class SitlConfig:
+    """How the simulated vehicle maps into the scene (``uav-depth sitl`` options).
+
+    ``tree_ned_m``: (N, E, D) m of the target branch's nearest surface in the
+    autopilot's local frame; None: ``scene.branch_distance_m`` in front of the start
+    pose. ``approach_yaw_deg``: heading the tree is approached from (the scene's
+    optical axis); None: from the start position toward the tree. ``pose_rate_hz``:
+    rate requested for LOCAL_POSITION_NED and ATTITUDE. ``pose_timeout_s``: a pose
+    older than this is not rendered (the frame source reports a loss instead).
+    """
+
+    tree_ned_m: tuple[float, float, float] | None = None
+    approach_yaw_deg: float | None = None
+    camera_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    camera_pitch_deg: float = 0.0
+    pose_rate_hz: float = 30.0
+    pose_timeout_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        for key, vec in (("--tree-ned", self.tree_ned_m), ("--camera-offset", self.camera_offset_m)):
+            if vec is not None and (len(vec) != 3 or not all(math.isfinite(float(v)) for v in vec)):
+                raise ConfigError(key, "must be three finite numbers (north, east, down / forward, right, down) "
+                                  "in metres", vec)
+        if self.approach_yaw_deg is not None and not -360.0 <= self.approach_yaw_deg <= 360.0:
+            raise ConfigError("--approach-yaw-deg", "must be between -360 and 360", self.approach_yaw_deg)
+        if not -90.0 < self.camera_pitch_deg < 90.0:
+            raise ConfigError("--camera-pitch-deg", "must be above -90 and below 90", self.camera_pitch_deg)
+        if not 1.0 <= self.pose_rate_hz <= 200.0:
+            raise ConfigError("--pose-rate-hz", "must be between 1 and 200", self.pose_rate_hz)
+        if not 0.05 <= self.pose_timeout_s <= 60.0:
+            raise ConfigError("--pose-timeout-s", "must be between 0.05 and 60", self.pose_timeout_s)
+
+    def describe(self, distance_m: float) -> str:
+        tree = ("tree %g m in front of the start pose" % distance_m if self.tree_ned_m is None
+                else "tree at NED %s m" % list(self.tree_ned_m))
+        yaw = "" if self.approach_yaw_deg is None else f", approached at heading {self.approach_yaw_deg:g} deg"
+        return (f"sitl: {tree}{yaw}, camera at {list(self.camera_offset_m)} m pitched {self.camera_pitch_deg:g} deg, "
+                f"pose at {self.pose_rate_hz:g} Hz (stale after {self.pose_timeout_s:g} s)")
+
+    @property
+    def mount(self) -> CameraMount:
+        return CameraMount(tuple(float(v) for v in self.camera_offset_m), self.camera_pitch_deg)
+
+    def anchor(self, start: VehicleState | None, distance_m: float) -> Anchor | None:
+        """The scene's world frame; None while it depends on a start pose not yet known."""
+        if self.tree_ned_m is not None and self.approach_yaw_deg is not None:
+            return Anchor.facing(self.tree_ned_m, math.radians(self.approach_yaw_deg), distance_m)
+        if start is None:
+            return None
+        if self.tree_ned_m is None:
+            return Anchor.at_start(start, self.mount)
+        _, centre = start.camera(self.mount)
+        dn, de = self.tree_ned_m[0] - centre[0], self.tree_ned_m[1] - centre[1]
+        if math.hypot(dn, de) < 1e-6:
+            raise ConfigError("--tree-ned", "must not be straight above or below the start position when "
+                              "--approach-yaw-deg is not given", list(self.tree_ned_m))
+        return Anchor.facing(self.tree_ned_m, math.atan2(de, dn), distance_m)
+
+
+class PoseTracker:
+    """Latest LOCAL_POSITION_NED and ATTITUDE of the autopilot -> rig pose for the synthetic source.
+
+    Feed it with :meth:`on_message` (from the MAVLink link's receive thread); call
+    it as the source's ``pose_provider`` (from the frame thread). ``distance_m`` is
+    the scene's ``branch_distance_m``. ``autopilot_sysid``: accept only that system
+    (0: the first that sends a pose).
+    """
+
+    def __init__(self, config: SitlConfig, distance_m: float, clock: Callable[[], float] = time.monotonic,
+                 autopilot_sysid: int = 0):
+        self.config = config
+        self.distance_m = distance_m
+        self.clock = clock
+        self.sysid = autopilot_sysid
+        self._lock = threading.Lock()
+        self._position: tuple[tuple[float, float, float], float] | None = None
+        self._attitude: tuple[tuple[float, float, float], float] | None = None
+        self._anchor: Anchor | None = config.anchor(None, distance_m)
+        self.messages = 0
+
+    def on_message(self, msg: Any) -> None:
+        """Take a LOCAL_POSITION_NED or ATTITUDE message (pymavlink); others are ignored."""
+        kind = msg.get_type()
+        if kind not in ("LOCAL_POSITION_NED", "ATTITUDE"):
+            return
+        sysid = msg.get_srcSystem()
+        now = self.clock()
+        with self._lock:
+            if self.sysid == 0:
+                self.sysid = sysid
+            elif sysid != self.sysid:
+                return
+            if kind == "LOCAL_POSITION_NED":
+                self._position = ((float(msg.x), float(msg.y), float(msg.z)), now)
+            else:
+                self._attitude = ((float(msg.roll), float(msg.pitch), float(msg.yaw)), now)
+            self.messages += 1
+            if self._anchor is None and self._position is not None and self._attitude is not None:
+                self._anchor = self.config.anchor(self._state_locked(), self.distance_m)
+
+    def _state_locked(self) -> VehicleState | None:
+        if self._position is None or self._attitude is None:
+            return None
+        (pos, tp), (att, ta) = self._position, self._attitude
+        return VehicleState(pos, att[0], att[1], att[2], min(tp, ta))
+
+    def state(self) -> VehicleState | None:
+        with self._lock:
+            return self._state_locked()
+
+    @property
+    def anchor(self) -> Anchor | None:
+        with self._lock:
+            return self._anchor
+
+    def tree_ned(self) -> np.ndarray | None:
+        """Where the target branch's nearest surface is in NED (None before the anchor is known)."""
+        a = self.anchor
+        return None if a is None else a.origin_ned + a.rotation @ np.array([0.0, 0.0, self.distance_m])
+
+    def __call__(self, t_s: float = 0.0) -> Pose:
+        """The rig pose now. Raises SourceError while there is no fresh pose (nothing is rendered)."""
+        with self._lock:
+            state, anchor = self._state_locked(), self._anchor
+        if state is None or anchor is None:
+            raise SourceError("sitl: no pose from the autopilot yet (waiting for LOCAL_POSITION_NED and ATTITUDE)")
+        age = self.clock() - state.t
+        if age > self.config.pose_timeout_s:
+            raise SourceError(f"sitl: the autopilot's pose is {age:.1f} s old (limit {self.config.pose_timeout_s:g} s)")
+        return anchor.pose(state, self.config.mount)
+
+
+class PoseRecorder:
+    """The tracker as a pose provider that remembers which vehicle state each rendered pose came from."""
+
+    def __init__(self, tracker: PoseTracker, keep: int = 512):
+        self.tracker = tracker
+        self._log: collections.deque[tuple[float, VehicleState]] = collections.deque(maxlen=keep)
+        self._lock = threading.Lock()
+
+    def __call__(self, t_s: float = 0.0) -> Pose:
+        t = self.tracker.clock()
+        pose = self.tracker(t_s)
+        state = self.tracker.state()
+        if state is not None:
+            with self._lock:
+                self._log.append((t, state))
+        return pose
+
+    def state_at(self, t: float, within_s: float = 0.1) -> VehicleState | None:
+        """The state rendered closest to monotonic time ``t`` (None if none within ``within_s``)."""
+        with self._lock:
+            entries = list(self._log)
+        if not entries:
+            return None
+        t_best, state = min(entries, key=lambda e: abs(e[0] - t))
+        return state if abs(t_best - t) <= within_s else None
+
+
+CSV_COLUMNS = ("time_s", "frame", "north_m", "east_m", "down_m", "roll_deg", "pitch_deg", "yaw_deg",
+               "truth_m", "measured_m", "sigma_m", "quality", "error_pct", "latency_ms", "reason")
+
+
+class TruthLog:
+    """Every processed frame of a running service as one CSV row: pose, truth, measurement.
+
+    Polls ``service.last_estimate`` on a thread of its own (never in the frame loop).
+    ``error_pct`` = 100 (measured - truth) / truth. Rows are flushed as written, so
+    a killed run keeps what it logged.
+    """
+
+    def __init__(self, path: str | Path, service: Any, recorder: PoseRecorder | None = None,
+                 tree_ned: np.ndarray | None = None, poll_s: float = 0.01):
+        self.path = Path(path)
+        self.service = service
+        self.recorder = recorder
+        self.tree_ned = tree_ned
+        self.poll_s = poll_s
+        self.errors_pct: list[float] = []
+        self.rows = 0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._file: Any = None
+
+    def start(self) -> "TruthLog":
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = self.path.open("w", newline="", buffering=1)
+        self._writer = csv.writer(self._file)
+        self._writer.writerow(CSV_COLUMNS)
+        self._thread = threading.Thread(target=self._loop, name="sitl-truth", daemon=True)
+        self._thread.start()
+        where = "" if self.tree_ned is None else " (tree at NED %s m)" % [round(float(v), 3) for v in self.tree_ned]
+        log.info("logging ground truth beside each measurement to %s%s", self.path, where)
+        return self
+
+    def _loop(self) -> None:
+        last = None
+        while not self._stop.wait(self.poll_s):
+            est = self.service.last_estimate
+            if est is None or est.frame_index == last:
+                continue
+            last = est.frame_index
+            self._row(est)
+
+    def _row(self, est: Any) -> None:
+        m = est.measurement
+        state = self.recorder.state_at(est.t_capture) if self.recorder is not None else None
+        err = None
+        if m.valid and est.truth_m:
+            err = 100.0 * (m.distance_m - est.truth_m) / est.truth_m
+            self.errors_pct.append(err)
+        f = lambda v, nd=4: "" if v is None else f"{v:.{nd}f}"  # noqa: E731
+        pose = ([f(v) for v in state.position_ned] + [f(math.degrees(a), 2) for a in (state.roll, state.pitch,
+                                                                                       state.yaw)]
+                if state is not None else [""] * 6)
+        self._writer.writerow([f(est.t_capture - self.service.t0, 3), est.frame_index, *pose, f(est.truth_m),
+                               f(m.distance_m), f(m.sigma_m), m.quality, f(err, 2),
+                               f(est.timings_ms.get("latency"), 1), m.reason or ""])
+        self.rows += 1
+
+    def close(self, timeout_s: float = 1.0) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+    def summary(self) -> str:
+        errs = [abs(e) for e in self.errors_pct]
+        if not errs:
+            return f"{self.rows} frames, none measured"
+        errs.sort()
+        p95 = errs[min(len(errs) - 1, int(math.ceil(0.95 * len(errs))) - 1)]
+        return (f"{self.rows} frames, {len(errs)} measured; |error| median {statistics.median(errs):.2f} %, "
+                f"95th percentile {p95:.2f} %, max {errs[-1]:.2f} %")

@@ -1,0 +1,100 @@
+"""uav-depth sitl as a user runs it: bad settings, --check, and the scripted approach without an autopilot."""
+
+from __future__ import annotations
+
+import csv
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import pytest
+import yaml
+
+from uav_depth.cli.main import EXIT_CONFIG
+from uav_depth.daemon.mavlink_enums import mavutil
+
+
+def sitl(*args, timeout=60):
+    return subprocess.run([sys.executable, "-m", "uav_depth.cli.main", "sitl", *args], capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def write_config(path, **source):
+    cfg = {"source": {"kind": "synthetic", "fps": 5,
+                      # 480 px wide: the default 128-px disparity search leaves the central ROI matchable.
+                      "scene": {"width": 480, "height": 270, "focal_px": 375.0, "branch_distance_m": 1.5,
+                                "n_branches": 0, "seed": 4}, **source},
+           "mavlink": {"url": "udpout:127.0.0.1:14999"}}
+    path.write_text(yaml.safe_dump(cfg))
+    return path
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--camera-pitch-deg", "95"], "--camera-pitch-deg must be above -90 and below 90, but got 95.0"),
+    (["--pose-rate-hz", "0"], "--pose-rate-hz must be between 1 and 200, but got 0.0"),
+    (["--set", "source.kind=replay", "--set", "source.path=/nonexistent"], None),
+], ids=["pitch", "rate", "not-synthetic"])
+def test_bad_settings_exit_78_with_one_line(tmp_path, extra, message):
+    cfg = write_config(tmp_path / "c.yaml")
+    proc = sitl("--config", str(cfg), *extra, "--check")
+    assert proc.returncode == EXIT_CONFIG, proc.stderr
+    line = proc.stderr.strip()
+    assert line.count("\n") == 0 and line.startswith("uav-depth sitl: error: ")
+    if message:
+        assert message in line
+    else:
+        assert "source" in line
+
+
+def test_replay_source_is_refused(tmp_path):
+    cfg = tmp_path / "c.yaml"
+    session = tmp_path / "s"
+    subprocess.run([sys.executable, "-m", "uav_depth.cli.main", "synth", str(session), "--frames", "1",
+                    "--width", "64", "--height", "48", "--focal-px", "50"], check=True, capture_output=True)
+    cfg.write_text(yaml.safe_dump({"source": {"kind": "replay", "path": str(session)}}))
+    proc = sitl("--config", str(cfg), "--check")
+    assert proc.returncode == EXIT_CONFIG
+    assert "source.kind must be synthetic for uav-depth sitl" in proc.stderr and "'replay'" in proc.stderr
+
+
+def test_check_describes_the_simulation(tmp_path):
+    cfg = write_config(tmp_path / "c.yaml")
+    proc = sitl("--config", str(cfg), "--tree-ned", "5", "1", "-2", "--approach-yaw-deg", "90", "--check")
+    assert proc.returncode == 0, proc.stderr
+    assert "tree at NED [5.0, 1.0, -2.0] m, approached at heading 90 deg" in proc.stdout
+
+
+def test_without_an_autopilot_the_scripted_approach_flies(tmp_path):
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    cfg = write_config(tmp_path / "c.yaml", approach_speed_mps=0.2, stop_distance_m=0.8)
+    listener = mavutil().mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
+    proc = subprocess.Popen([sys.executable, "-m", "uav_depth.cli.main", "sitl", "--config", str(cfg),
+                             "--mavlink-url", f"udpout:127.0.0.1:{port}", "--wait-s", "0.5",
+                             "--truth-log", str(tmp_path / "truth.csv")],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    readings = []
+    try:
+        deadline = time.monotonic() + 45
+        while time.monotonic() < deadline and proc.poll() is None:
+            msg = listener.recv_match(type="DISTANCE_SENSOR", blocking=True, timeout=0.5)
+            if msg is not None and msg.signal_quality > 1:
+                readings.append(msg.current_distance / 100.0)
+                if len(readings) >= 8 and readings[-1] < 1.2:
+                    break
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=30)
+        listener.close()
+    assert proc.returncode == 0, out[-2000:]
+    assert "no pose from an autopilot within 0 s: flying the scripted approach instead" in out
+    assert readings, out[-2000:]
+    # The branch comes closer: first readings near 1.5 m, later ones below 1.2 m.
+    assert readings[0] == pytest.approx(1.5, abs=0.15) and readings[-1] < 1.2, readings
+    with open(tmp_path / "truth.csv") as f:
+        rows = [r for r in csv.DictReader(f) if r["error_pct"]]
+    assert rows and all(r["north_m"] == "" for r in rows)          # no autopilot pose to log
+    assert all(abs(float(r["error_pct"])) < 5.0 for r in rows), [r["error_pct"] for r in rows]

@@ -1,0 +1,173 @@
+import pytest
+import yaml
+
+from uav_depth.core.errors import ConfigError, FileFormatError
+from uav_depth.core.params import (DEFAULT_PARAMS, SPECS, dump_params, load_params, params_from_dict,
+                                     read_provenance, save_params)
+
+
+def test_defaults_are_opencv_sample_values():
+    sg = DEFAULT_PARAMS.sgbm
+    bs = sg.block_size
+    assert (sg.p1, sg.p2) == (8 * 3 * bs * bs, 32 * 3 * bs * bs)
+    assert (sg.disp12_max_diff, sg.uniqueness_ratio, sg.speckle_window_size, sg.speckle_range) == (1, 10, 100, 32)
+    assert (DEFAULT_PARAMS.wls.lambda_, DEFAULT_PARAMS.wls.sigma_color) == (8000.0, 1.5)
+
+
+def test_round_trip_with_provenance(tmp_path):
+    params = DEFAULT_PARAMS.replace(**{"sgbm.p1": 100, "sgbm.p2": 5000, "wls.lambda": 1234.5})
+    path = save_params(params, tmp_path / "p.yaml", provenance={"metric": "mse", "seed": 3})
+    assert load_params(path) == params
+    assert read_provenance(path) == {"metric": "mse", "seed": 3}
+    assert not [p for p in tmp_path.iterdir() if p.name != "p.yaml"], "temp file left behind"
+
+
+def test_every_key_documented_with_default_that_validates():
+    assert params_from_dict({}) == DEFAULT_PARAMS
+    for spec in SPECS:
+        assert spec.check(spec.default) == spec.default
+
+
+def test_hash_changes_with_values():
+    assert DEFAULT_PARAMS.hash() != DEFAULT_PARAMS.replace(**{"sgbm.uniqueness_ratio": 11}).hash()
+
+
+BAD = [
+    ("mult16", {"sgbm": {"num_disparities": 40}}, "sgbm.num_disparities must be a positive multiple of 16, but got 40"),
+    ("odd", {"sgbm": {"block_size": 4}}, "sgbm.block_size must be odd, but got 4"),
+    ("range", {"sgbm": {"uniqueness_ratio": 101}}, "sgbm.uniqueness_ratio must be between 0 and 100, but got 101"),
+    ("p2-gt-p1", {"sgbm": {"p1": 500, "p2": 400}}, "sgbm.p2 must be greater than sgbm.p1 (500), but got 400"),
+    ("mode", {"sgbm": {"mode": "fast"}}, "sgbm.mode must be one of sgbm, sgbm_3way, hh, hh4, but got 'fast'"),
+    ("type", {"sgbm": {"p1": "big"}}, "sgbm.p1 must be a number (int), but got 'big'"),
+    ("float-int", {"sgbm": {"p1": 10.5}}, "sgbm.p1 must be an integer, but got 10.5"),
+    ("bool", {"wls": {"enabled": "yes"}}, "wls.enabled must be true or false, but got 'yes'"),
+    ("unknown-key", {"sgbm": {"p3": 1}}, "sgbm.p3 is not a known key"),
+    ("unknown-section", {"sgmb": {}}, "sgmb is not a known section"),
+    ("sigma-zero", {"wls": {"sigma_color": 0}}, "wls.sigma_color must be greater than 0, but got 0.0"),
+    ("nan", {"wls": {"lambda": float("nan")}}, "wls.lambda must be a finite number"),
+    ("section-not-map", {"sgbm": 5}, "sgbm must be a mapping, but got 5"),
+]
+
+
+@pytest.mark.parametrize("data,message", [b[1:] for b in BAD], ids=[b[0] for b in BAD])
+def test_bad_values_name_key_rule_value(tmp_path, data, message):
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError) as err:
+        load_params(path)
+    assert message in str(err.value)
+    assert str(path) in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("text,message", [("sgbm: [1, 2\n", "not valid YAML at line"),
+                                          ("- 1\n- 2\n", "must be a mapping of sections")],
+                         ids=["broken-yaml", "list"])
+def test_bad_files(tmp_path, text, message):
+    path = tmp_path / "params.yaml"
+    path.write_text(text)
+    with pytest.raises((ConfigError, FileFormatError), match=message):
+        load_params(path)
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(FileFormatError, match="parameter file not found"):
+        load_params(tmp_path / "nope.yaml")
+
+
+def test_save_refuses_nothing_invalid_and_keeps_old_file(tmp_path):
+    path = save_params(DEFAULT_PARAMS, tmp_path / "p.yaml")
+    before = path.read_text()
+    with pytest.raises(ConfigError):
+        DEFAULT_PARAMS.replace(**{"sgbm.block_size": 6})
+    assert path.read_text() == before
+    assert dump_params(DEFAULT_PARAMS) == before
+
+
+# -- compute.* (speed levers that change the disparity, so they live in the file) ---------------------------------
+
+
+def test_compute_defaults_are_the_full_frame_baseline():
+    cp = DEFAULT_PARAMS.compute
+    assert cp.is_baseline and cp.roi == (0.0, 0.0, 1.0, 1.0) and cp.scale == 1.0 and cp.grey is False
+    assert cp.roi_pixels(1280, 720) == (0, 0, 1280, 720)
+    assert DEFAULT_PARAMS.to_dict()["compute"] == {"roi": [0.0, 0.0, 1.0, 1.0], "scale": 1.0, "grey": False,
+                                                   "wls_at": "input"}
+
+
+def test_compute_keys_round_trip_and_region_is_written_on_one_line(tmp_path):
+    params = DEFAULT_PARAMS.replace(**{"compute.roi": [0.25, 0.3, 0.75, 0.7], "compute.scale": 0.5,
+                                       "compute.grey": True})
+    assert not params.compute.is_baseline
+    path = save_params(params, tmp_path / "p.yaml")
+    assert "roi: [0.25, 0.3, 0.75, 0.7]" in path.read_text()
+    assert load_params(path) == params
+    assert params.hash() != DEFAULT_PARAMS.hash()
+
+
+def test_a_file_without_compute_section_loads_as_baseline(tmp_path):
+    path = tmp_path / "old.yaml"
+    path.write_text("sgbm:\n  p1: 100\n  p2: 400\nwls:\n  lambda: 100.0\n")
+    assert load_params(path).compute == DEFAULT_PARAMS.compute
+
+
+@pytest.mark.parametrize("width,height,roi,box", [
+    (1280, 720, (0.33, 0.33, 0.67, 0.67), (422, 238, 858, 482)),
+    (320, 240, (0.0, 0.5, 0.25, 1.0), (0, 120, 80, 240)),
+    (100, 100, (0.5, 0.5, 0.501, 0.502), (50, 50, 51, 51)),      # never empty
+], ids=["centre", "corner", "tiny"])
+def test_roi_pixels(width, height, roi, box):
+    params = DEFAULT_PARAMS.replace(**{"compute.roi": list(roi)})
+    assert params.compute.roi_pixels(width, height) == box
+
+
+BAD_COMPUTE = [
+    ("roi-not-list", {"compute": {"roi": 0.5}}, "compute.roi must be a list of 4 numbers [left, top, right, bottom]"),
+    ("roi-three", {"compute": {"roi": [0, 0, 1]}}, "compute.roi must be a list of 4 numbers"),
+    ("roi-text", {"compute": {"roi": [0, 0, "1", 1]}}, "compute.roi must be a list of 4 numbers"),
+    ("roi-range", {"compute": {"roi": [0, 0, 1.5, 1]}}, "compute.roi must have every number between 0 and 1"),
+    ("roi-order", {"compute": {"roi": [0.6, 0, 0.4, 1]}}, "compute.roi must have left < right and top < bottom, "
+                                                          "but got [0.6, 0, 0.4, 1]"),
+    ("scale-range", {"compute": {"scale": 0.1}}, "compute.scale must be between 0.125 and 1, but got 0.1"),
+    ("scale-up", {"compute": {"scale": 2}}, "compute.scale must be between 0.125 and 1, but got 2.0"),
+    ("grey-bool", {"compute": {"grey": 1}}, "compute.grey must be true or false, but got 1"),
+    ("wls-at", {"compute": {"wls_at": "half"}}, "compute.wls_at must be one of input, matched, but got 'half'"),
+    ("unknown", {"compute": {"threads": 2}}, "compute.threads is not a known key"),
+]
+
+
+@pytest.mark.parametrize("data,message", [b[1:] for b in BAD_COMPUTE], ids=[b[0] for b in BAD_COMPUTE])
+def test_bad_compute_values_name_key_rule_value(tmp_path, data, message):
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError) as err:
+        load_params(path)
+    assert message in str(err.value) and str(path) in str(err.value) and "\n" not in str(err.value)
+
+
+def test_disparity_search_range_from_working_distance():
+    from uav_depth.core.params import disparity_search_range
+
+    # ZED Mini-like 1280x720: f*B = 44.1 px*m; 0.3 m is d = 147 px, 3 m is 14.7 px.
+    assert disparity_search_range(700.0, 0.063, 0.3) == (0, 160)
+    assert disparity_search_range(700.0, 0.063, 0.3, scale=0.5) == (0, 80)
+    assert disparity_search_range(700.0, 0.063, 0.3, 3.0, scale=0.5) == (7, 80)
+    assert disparity_search_range(700.0, 0.063, 0.5) == (0, 96)
+    with pytest.raises(ConfigError, match="near_m must be a positive distance"):
+        disparity_search_range(700.0, 0.063, 0.0)
+    with pytest.raises(ConfigError, match="far_m must be greater than near_m"):
+        disparity_search_range(700.0, 0.063, 1.0, 0.5)
+    with pytest.raises(ConfigError, match="sgbm.num_disparities must be between 16 and 1024"):
+        disparity_search_range(700.0, 0.063, 0.01)
+
+
+def test_flight_parameter_file_is_the_documented_settings():
+    """deploy/params-flight.yaml is what benchmark.flight_params() says (regenerate it if this fails)."""
+    from pathlib import Path
+
+    from uav_depth.cli.benchmark import flight_params
+
+    path = Path(__file__).resolve().parents[2] / "deploy" / "params-flight.yaml"
+    flight = load_params(path)
+    assert flight == flight_params()
+    assert flight.sgbm.mode == "sgbm_3way" and flight.compute.scale == 0.5 and flight.compute.grey
