@@ -39,6 +39,7 @@ from uav_depth.daemon.config import RunConfig
 from uav_depth.core.disparity import DisparityPipeline
 from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError, FrameError, SourceError, UavDepthError
 from uav_depth.daemon.framelog import FrameLogger
+from uav_depth.daemon.liveview import LiveView
 from uav_depth.daemon.mavlink_out import MavlinkLink, SendClock
 from uav_depth.daemon.notify import Notifier
 from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, load_params
@@ -179,6 +180,7 @@ class Service:
         self.roi: tuple[int, int, int, int] | None = None
         self.clock: SendClock | None = None
         self.framelog: FrameLogger | None = None
+        self.liveview: LiveView | None = None       # liveview.enabled: the read-only web page
         self.state = "boot"
         self.camera_ok = False
         self.ended: str | None = None
@@ -326,6 +328,9 @@ class Service:
         self.clock = SendClock(self.link, cfg.mavlink, cfg.ranging.max_age_ms / 1000.0,
                                estimate=lambda: self.estimate, limits=self._limits,
                                state=lambda: self.state).start()
+        if cfg.liveview.enabled:
+            c = self.calibration
+            self.liveview = LiveView.bind(cfg.liveview, c.focal_px * c.baseline_m, self._view_status)
         for name, target in (("capture", self._capture_loop), ("stereo", self._stereo_loop)):
             t = threading.Thread(target=target, name=name, daemon=True)
             self._threads[name] = t
@@ -335,6 +340,11 @@ class Service:
                                         since=self._params_signature)
             self._watcher.start(self._stopping)
             log.info("watching %s for new parameters (%s)", cfg.params_file, "inotify + poll")
+
+    def _view_status(self) -> dict[str, Any]:
+        clock = self.clock
+        return {"state": self.state, "fps": self.stats.fps(time.monotonic()), "camera_ok": self.camera_ok,
+                "wire": clock.last_report if clock else None}
 
     def _limits(self) -> RangeLimits:
         stage = self.stage
@@ -452,6 +462,8 @@ class Service:
             self.estimate = est
         # else: a single-frame jump, held back; the previous estimate ages out on its own
         self.stats.add(t_done, timings)
+        if self.liveview is not None:   # references only: nothing is drawn unless someone watches
+            self.liveview.offer(left, result.disparity, est, self.roi, stage.params)
         if self.framelog is not None:
             self.framelog.consider(frame.index, left, right, self._frame_meta(frame, est), frame.reference,
                                    frame.reference_source)
@@ -567,6 +579,8 @@ class Service:
                 abandoned.append(f"the {name} thread{what}")
         if self._watcher is not None and not self._watcher.join(left()):
             abandoned.append("the parameter watcher")
+        if self.liveview is not None and not self.liveview.close(left()):
+            abandoned.append("the live view server")
         if self.framelog is not None:
             lost = self.framelog.close(left())
             if lost:
