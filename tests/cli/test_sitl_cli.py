@@ -96,9 +96,14 @@ def test_without_an_autopilot_the_scripted_approach_flies(tmp_path):
     assert proc.returncode == 0, out[-2000:]
     assert "scripted approach: listening 0.5 s for an autopilot's HEARTBEAT" in out
     assert readings, out[-2000:]
-    # The branch comes closer: first readings near 1.5 m, later ones below 1.2 m.
-    assert readings[0] == pytest.approx(1.5, abs=0.15) and readings[-1] < 1.2, readings
+    # Every reading on the wire lies on the scripted path (1.5 m down to the 0.8 m stop), and it ends close.
+    assert all(0.75 <= d <= 1.58 for d in readings) and readings[-1] < 1.2, readings
     with open(tmp_path / "truth.csv") as f:
-        rows = [r for r in csv.DictReader(f) if r["error_pct"]]
+        rows = list(csv.DictReader(f))
     assert rows and all(r["north_m"] == "" for r in rows)          # no autopilot pose to log
-    assert all(abs(float(r["error_pct"])) < 5.0 for r in rows), [r["error_pct"] for r in rows]
+    # The rig moved: the logged truth went from near the start (1.5 m) to the stop (0.8 m). On two loaded
+    # cores the first measurement may come only once it got there, hence the truth, not the wire.
+    truths = [float(r["truth_m"]) for r in rows if r["truth_m"]]
+    assert truths[0] > 1.2 and truths[0] <= 1.5 and min(truths) == pytest.approx(0.8, abs=0.02), truths
+    measured = [r for r in rows if r["error_pct"]]
+    assert measured and all(abs(float(r["error_pct"])) < 5.0 for r in measured), [r["error_pct"] for r in measured]
