@@ -352,15 +352,17 @@ class PoseRecorder:
 
 
 CSV_COLUMNS = ("time_s", "frame", "north_m", "east_m", "down_m", "roll_deg", "pitch_deg", "yaw_deg",
-               "truth_m", "measured_m", "sigma_m", "quality", "error_pct", "latency_ms", "reason")
+               "truth_m", "measured_m", "sigma_m", "quality", "error_pct", "latency_ms", "reason", "monotonic_s")
 
 
 class TruthLog:
     """Every processed frame of a running service as one CSV row: pose, truth, measurement.
 
     Polls ``service.last_estimate`` on a thread of its own (never in the frame loop).
-    ``error_pct`` = 100 (measured - truth) / truth. Rows are flushed as written, so
-    a killed run keeps what it logged.
+    ``error_pct`` = 100 (measured - truth) / truth. ``monotonic_s``: the capture time
+    on the system-wide monotonic clock (CLOCK_MONOTONIC), so another process on the
+    same machine (a SITL harness) can line rows up with what it saw. Rows are
+    flushed as written, so a killed run keeps what it logged.
     """
 
     def __init__(self, path: str | Path, service: Any, recorder: PoseRecorder | None = None,
@@ -409,7 +411,7 @@ class TruthLog:
                 if state is not None else [""] * 6)
         self._writer.writerow([f(est.t_capture - self.service.t0, 3), est.frame_index, *pose, f(est.truth_m),
                                f(m.distance_m), f(m.sigma_m), m.quality, f(err, 2),
-                               f(est.timings_ms.get("latency"), 1), m.reason or ""])
+                               f(est.timings_ms.get("latency"), 1), m.reason or "", f(est.t_capture, 3)])
         self.rows += 1
 
     def close(self, timeout_s: float = 1.0) -> None:
