@@ -86,15 +86,19 @@ def sweep(dists, seeds, variants=tuple(VARIANTS), params_names=("baseline", "fli
     return rows
 
 
-def summarize(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+def summarize(rows: list[dict[str, Any]], by_variant: bool = True) -> list[dict[str, Any]]:
+    """Per parameter set over all variants ("all"), then per (parameter set, variant)."""
+    groups = [(name, "all") for name in dict.fromkeys(r["params"] for r in rows)]
+    if by_variant:
+        groups += list(dict.fromkeys((r["params"], r["variant"]) for r in rows))
     out = []
-    for name in dict.fromkeys(r["params"] for r in rows):
-        rs = [r for r in rows if r["params"] == name]
+    for name, variant in groups:
+        rs = [r for r in rows if r["params"] == name and variant in ("all", r["variant"])]
         inside = [r for r in rs if r["inside_min"]]
         errs = [r["err"] for r in rs if r["err"] is not None and not r["inside_min"]]
         worst = max(errs, key=abs) if errs else None
         out.append({
-            "params": name, "frames": len(rs), "min_range_m": rs[0]["min_range_m"],
+            "params": name, "variant": variant, "frames": len(rs), "min_range_m": rs[0]["min_range_m"],
             "inside_min": len(inside), "inside_min_too_close": sum(r["too_close"] for r in inside),
             "inside_min_sent_valid": sum(r["reported_m"] is not None for r in inside),
             "farther_2pct": sum(r["farther"] for r in rs),
@@ -108,11 +112,11 @@ def summarize(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def format_table(summary: list[dict[str, Any]]) -> str:
-    head = (f"{'params':9s} {'frames':>6s} {'min m':>6s} {'inside':>6s} {'too close':>9s} {'sent valid':>10s} "
+    head = (f"{'params':9s} {'variant':7s} {'frames':>6s} {'min m':>6s} {'inside':>6s} {'too close':>9s} {'sent valid':>10s} "
             f"{'farther>2%':>10s} {'median|e|':>9s} {'worst':>8s} {'no meas':>7s}")
     lines = [head, "-" * len(head)]
     for s in summary:
-        lines.append(f"{s['params']:9s} {s['frames']:6d} {s['min_range_m']:6.3f} {s['inside_min']:6d} "
+        lines.append(f"{s['params']:9s} {s['variant']:7s} {s['frames']:6d} {s['min_range_m']:6.3f} {s['inside_min']:6d} "
                      f"{s['inside_min_too_close']:9d} {s['inside_min_sent_valid']:10d} {s['farther_2pct']:10d} "
                      f"{fmt_pct(s['median_abs_err']):>9s} {fmt_pct(s['worst_err']):>8s} {s['no_measurement']:7d}")
     lines.append("inside: truth nearer than the minimum range; too close / sent valid: of those; farther>2%: valid "
