@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.core.disparity.result import DisparityResult
 from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, load_params, read_provenance
 from uav_depth.daemon.mavlink_out import distance_report
 from uav_depth.daemon.ranging import Estimate, Ranger, RangingConfig
@@ -51,6 +52,7 @@ class Rendered:
     truth_m: float          # nearest significant object in the ranging region (sim/truth.py)
     nearest_any_m: float    # nearest surface of anything there, needles included
     target_m: float         # nearest surface of the target branch there
+    disparity: np.ndarray   # exact left disparity, px (0 on the sky)
 
 
 def render_cached(cfg: SceneConfig, cache: bool = True) -> Rendered:
@@ -62,15 +64,18 @@ def render_cached(cfg: SceneConfig, cache: bool = True) -> Rendered:
     path = CACHE_DIR / f"{key}.npz"
     if cache and path.exists():
         z = np.load(path)
-        return Rendered(z["left"], z["right"], float(z["truth"]), float(z["any"]), float(z["target"]))
+        if "disp" in z.files:
+            return Rendered(z["left"], z["right"], float(z["truth"]), float(z["any"]), float(z["target"]), z["disp"])
     frame = Scene(cfg).render(rng=np.random.default_rng([cfg.seed, 0]))
     roi = cfg.center_roi
     t = frame.truth(roi)
-    r = Rendered(frame.left, frame.right, t.significant_m, t.nearest_any_m, frame.nearest_branch_distance(roi))
+    r = Rendered(frame.left, frame.right, t.significant_m, t.nearest_any_m, frame.nearest_branch_distance(roi),
+                 frame.disparity)
     if cache:
         CACHE_DIR.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
-        np.savez(tmp, left=r.left, right=r.right, truth=r.truth_m, any=r.nearest_any_m, target=r.target_m)
+        np.savez(tmp, left=r.left, right=r.right, truth=r.truth_m, any=r.nearest_any_m, target=r.target_m,
+                 disp=r.disparity)
         os.replace(tmp, path)
     return r
 
@@ -86,6 +91,11 @@ class Measurer:
     @property
     def min_range_m(self) -> float:
         return self.ranger.limits.min_distance_m
+
+    def measure_exact(self, disparity: np.ndarray) -> float | None:
+        """The same ranging on the exact disparity (no matcher): the ranging's own error, m."""
+        d = np.where(disparity > 0, disparity, np.nan).astype(np.float32)
+        return self.ranger.measure(DisparityResult(d, d, None)).distance_m
 
     def measure(self, left: np.ndarray, right: np.ndarray) -> dict[str, Any]:
         """What the wire would say for this pair: reported_m (None: no measurement), too_close, quality, ms."""
