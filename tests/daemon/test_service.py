@@ -11,7 +11,8 @@ from uav_depth.core.errors import ConfigError, SourceError
 from uav_depth.core.fileio import atomic_write_text
 from uav_depth.core.params import DEFAULT_PARAMS, save_params
 from uav_depth.sim.scene import Pose
-from uav_depth.daemon.service import Service, check_roi_against_compute
+from uav_depth.daemon.service import Service
+from uav_depth.daemon.stage import check_roi_against_compute
 
 
 SCENE = {"width": 320, "height": 240, "focal_px": 200.0, "branch_distance_m": 0.8, "branch_radius_m": 0.04,
