@@ -274,10 +274,13 @@ class Service:
                        timings)
         self.last_estimate = est
         if not m.valid:
-            self.estimate = est        # the newest frame measured nothing: say so at the next tick
+            self.estimate = est        # the newest frame measured nothing: the wire goes blind
         elif self._gate.accept(m.distance_m, frame.t_capture):
             self.estimate = est
         # else: a single-frame jump, held back; the previous estimate ages out on its own
+        clock = self.clock
+        if clock is not None:
+            clock.notify()             # sent now, not at the next tick
         self.stats.add(t_done, timings)
         if self.framelog is not None:
             self.framelog.consider(frame.index, left, right,
