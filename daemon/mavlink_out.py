@@ -211,7 +211,7 @@ Callback = Callable[[Any], None]
 RECONNECT_MAX_S = 0.25
 #: A TCP peer that has answered TIMESYNC once and leaves a request unanswered this long is not
 #: reading: measurements are held back (they would wait in its receive buffer and arrive old).
-PROBE_TIMEOUT_S = 0.15
+PROBE_TIMEOUT_S = 0.1
 #: A udpin peer silent this long may be replaced by the next autopilot that sends a HEARTBEAT.
 PEER_SILENT_S = 3.0
 #: Messages waiting to be written, at most (the oldest is dropped first).
