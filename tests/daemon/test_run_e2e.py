@@ -235,7 +235,8 @@ def test_parameters_hot_reload_and_rejection_while_messages_flow(tmp_path, rx, p
     rejected = [line for line in err.splitlines() if "parameters rejected" in line]
     assert len(rejected) == 1
     assert "sgbm.num_disparities must be a positive multiple of 16, but got 40" in rejected[0]
-    assert len(after) >= 0.9 * 1.5 * RATE_HZ and sum(m.signal_quality > 1 for m in after) >= 0.8 * len(after)
+    # each estimate once, as soon as it exists (10 frames/s at most here): readings kept flowing, all valid
+    assert len(after) >= 3 and all(m.signal_quality > 1 for m in after)
 
 
 def test_disk_full_stops_logging_and_the_daemon_keeps_flying(tmp_path, rx, params_file):
@@ -260,7 +261,7 @@ def test_disk_full_stops_logging_and_the_daemon_keeps_flying(tmp_path, rx, param
     err = daemon.stderr()
     assert code == 0, err
     assert "frame logging stopped: cannot write to" in err
-    assert len(after) >= 0.9 * RATE_HZ and any(m.signal_quality > 1 for m in after)
+    assert len(after) >= 3 and all(m.signal_quality > 1 for m in after)
 
 
 def run_cli(tmp_path, config, timeout=60):
