@@ -43,7 +43,8 @@ from typing import Any, Callable
 from uav_depth.daemon.config import MavlinkConfig
 from uav_depth.daemon.mavlink_enums import (HEARTBEAT_PERIOD_S, MAV_AUTOPILOT_INVALID, MAV_CMD_SET_MESSAGE_INTERVAL,
                                             MAV_STATE, MAV_TYPE_ONBOARD_CONTROLLER, SENSOR_TYPES, SEVERITY,
-                                            STATUSTEXT_LEN, UINT8_UNKNOWN, mavutil, orientation_code)
+                                            STATUSTEXT_LEN, UINT8_UNKNOWN, cm_down, mavutil, orientation_code,
+                                            wire_range_cm)
 from uav_depth.core.errors import ConfigError
 from uav_depth.daemon.mavlink_transport import (Stream, TcpClient, TcpServer, Transport, UdpIn, open_transport,
                                                 wait_readable)
@@ -100,28 +101,6 @@ STATE_BLIND = {"boot": STARTING, "critical": CAMERA_LOST, "standby": SOURCE_ENDE
 STATUSTEXT_MIN_S = 1.0
 
 
-def cm_down(distance_m: float) -> int:
-    """A distance in whole cm, rounded down (nearer), never up: 0.2749 m -> 27.
-
-    The 1e-6 cm guard keeps binary floating point from taking 0.29 m (28.999999999999996)
-    down to 28.
-    """
-    return int(math.floor(distance_m * 100.0 + 1e-6))
-
-
-def wire_range_cm(limits: RangeLimits) -> tuple[int, int]:
-    """(min_distance, max_distance) in cm for these range limits.
-
-    min_distance is the minimum range rounded down, less 1 cm: every reading (>= the
-    minimum, rounded down) is then strictly greater, as PX4 requires, and "too close"
-    (min_distance + 1) is the minimum range itself rounded down. max_distance is the
-    maximum range rounded down (a reading beyond it is not sent).
-    """
-    min_cm = max(0, cm_down(limits.min_distance_m) - 1)
-    max_cm = max(min_cm + 1, min(65534, cm_down(limits.max_distance_m)))
-    return min_cm, max_cm
-
-
 def boot_ms(t: float, t_start: float = 0.0) -> int:
     """time_boot_ms of monotonic time ``t``: ms since ``t_start`` (0: since the companion booted)."""
     return int(math.floor((t - t_start) * 1000.0)) & 0xFFFFFFFF
@@ -173,7 +152,7 @@ def distance_report(estimate: Estimate | None, limits: RangeLimits, now: float, 
     """
     if estimate is not None:
         limits = estimate.limits
-    min_cm, max_cm = wire_range_cm(limits)
+    min_cm, max_cm = wire_range_cm(limits.min_distance_m, limits.max_distance_m)
     age = None if estimate is None else now - estimate.t_capture
     stamp = boot_ms(estimate.t_capture if estimate is not None else now, t_start)
 

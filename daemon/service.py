@@ -234,7 +234,10 @@ class Service:
         return ObstacleSender(self.config.obstacle_distance, Field(c.width, c.focal_px, c.principal_point[0]),
                               c.focal_px * c.baseline_m, self.config.ranging.max_age_ms / 1000.0,
                               lambda: self.stage.params, lim,
-                              lambda r: self.link.send(encoder(r, stype)), clock.t_start)
+                              lambda r: self.link.send_measurement("OBSTACLE_DISTANCE", encoder(r, stype),
+                                                                   r.time_usec / 1e6 + clock.t_start,
+                                                                   self.config.ranging.max_age_ms / 1000.0),
+                              clock.t_start)
 
     def _view_status(self) -> dict[str, Any]:
         clock = self.clock
