@@ -43,6 +43,8 @@ from uav_depth.daemon.config import RunConfig
 from uav_depth.daemon.framelog import FrameLogger, frame_meta
 from uav_depth.daemon.health import Health, Stats, status_line
 from uav_depth.daemon.liveview import LiveView
+from uav_depth.daemon.obstacles import Field, ObstacleSender, encoder, limits_cm
+from uav_depth.daemon.rigwatch import RigWatch
 from uav_depth.daemon.mavlink_out import MavlinkLink, SendClock
 from uav_depth.daemon.notify import Notifier
 from uav_depth.daemon.ranging import Estimate, OutlierGate, RangeLimits, resolve_roi
@@ -99,6 +101,8 @@ class Service:
         self.clock: SendClock | None = None
         self.framelog: FrameLogger | None = None
         self.liveview: LiveView | None = None       # liveview.enabled: the read-only web page
+        self.rigwatch: RigWatch | None = None       # rig_check.interval_s > 0: the periodic rig check
+        self.obstacles: ObstacleSender | None = None  # obstacle_distance.enabled: OBSTACLE_DISTANCE
         self.state = "boot"
         self.camera_ok = False
         self.ended: str | None = None
@@ -209,6 +213,11 @@ class Service:
         if cfg.liveview.enabled:
             c = self.calibration
             self.liveview = LiveView.bind(cfg.liveview, c.focal_px * c.baseline_m, self._view_status)
+        if cfg.rig_check.interval_s > 0:
+            self.rigwatch = RigWatch(cfg.rig_check, lambda text: self.link.statustext(text, "warning"))
+            self.rigwatch.start(self._stopping)
+        if cfg.obstacle_distance.enabled:
+            self.obstacles = self._obstacle_sender().start(self._stopping)
         for name, target in (("capture", self.capture.run), ("stereo", self._stereo_loop)):
             t = threading.Thread(target=target, name=name, daemon=True)
             self._threads[name] = t
@@ -218,6 +227,17 @@ class Service:
                                         since=self.stages.signature)
             self._watcher.start(self._stopping)
             log.info("watching %s for new parameters (%s)", cfg.params_file, "inotify + poll")
+
+    def _obstacle_sender(self) -> ObstacleSender:
+        c, clock, stype = self.calibration, self.clock, self.clock.sensor_type
+        lim = lambda: limits_cm(self._limits().min_distance_m, self._limits().max_distance_m)  # noqa: E731
+        return ObstacleSender(self.config.obstacle_distance, Field(c.width, c.focal_px, c.principal_point[0]),
+                              c.focal_px * c.baseline_m, self.config.ranging.max_age_ms / 1000.0,
+                              lambda: self.stage.params, lim,
+                              lambda r: self.link.send_measurement("OBSTACLE_DISTANCE", encoder(r, stype),
+                                                                   r.time_usec / 1e6 + clock.t_start,
+                                                                   self.config.ranging.max_age_ms / 1000.0),
+                              clock.t_start)
 
     def _view_status(self) -> dict[str, Any]:
         clock = self.clock
@@ -284,13 +304,20 @@ class Service:
                        timings)
         self.last_estimate = est
         if not m.valid:
-            self.estimate = est        # the newest frame measured nothing: say so at the next tick
+            self.estimate = est        # the newest frame measured nothing: the wire goes blind
         elif self._gate.accept(m.distance_m, frame.t_capture):
             self.estimate = est
         # else: a single-frame jump, held back; the previous estimate ages out on its own
+        clock = self.clock
+        if clock is not None:
+            clock.notify()             # sent now, not at the next tick
         self.stats.add(t_done, timings)
         if self.liveview is not None:   # references only: nothing is drawn unless someone watches
             self.liveview.offer(left, result.disparity, est, self.roi, stage.params)
+        if self.rigwatch is not None:
+            self.rigwatch.offer(left, right)
+        if self.obstacles is not None:
+            self.obstacles.offer(left, right, frame.t_capture)
         if self.framelog is not None:
             self.framelog.consider(frame.index, left, right,
                                    frame_meta(frame, est, self.t0, self.config.source_kind, self.roi), frame.reference,
@@ -343,6 +370,10 @@ class Service:
                 abandoned.append(f"the {name} thread{self.health.abandoned_detail(name)}")
         if self._watcher is not None and not self._watcher.join(left()):
             abandoned.append("the parameter watcher")
+        if self.obstacles is not None and not self.obstacles.join(left()):
+            abandoned.append("the obstacle pass")
+        if self.rigwatch is not None and not self.rigwatch.join(left()):
+            abandoned.append("the rig check")
         if self.liveview is not None and not self.liveview.close(left()):
             abandoned.append("the live view server")
         if self.framelog is not None:
