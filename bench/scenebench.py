@@ -3,8 +3,9 @@ cached synthetic frames, and one frame measured as the daemon does and put on th
 
 A frame goes through the real ``DisparityPipeline``, the daemon's ``Ranger`` and
 ``mavlink_out.distance_report``: the distance judged is what DISTANCE_SENSOR would carry
-(``current_distance`` in cm, valid or not), and "too close" is read from the estimate
-(``getattr(..., "too_close", False)`` until the ranging's too-close rule lands).
+when its condition is "measuring" (``current_distance`` in cm); "too close" is that
+report's condition (the wire's: a reading at or inside the minimum range, or an
+estimate the ranging marks ``too_close``).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import numpy as np
 from uav_depth.core.disparity import DisparityPipeline
 from uav_depth.core.disparity.result import DisparityResult
 from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, load_params, read_provenance
-from uav_depth.daemon.mavlink_out import distance_report
+from uav_depth.daemon.mavlink_out import TOO_CLOSE, distance_report
 from uav_depth.daemon.ranging import Estimate, Ranger, RangingConfig
 from uav_depth.sim.scene import Scene, SceneConfig
 
@@ -106,11 +107,9 @@ class Measurer:
         now = time.monotonic()
         est = Estimate(m, self.ranger.limits, now, now, 0, "bench")
         rep = distance_report(est, self.ranger.limits, now, 1.0, now)
-        too_close = bool(getattr(est, "too_close", False) or getattr(m, "too_close", False)
-                         or getattr(rep, "too_close", False))
         return {"reported_m": rep.current_distance / 100.0 if rep.valid else None,
-                "ranged_m": m.distance_m, "too_close": too_close, "quality": rep.signal_quality,
-                "ms": ms, "reason": m.reason}
+                "ranged_m": m.distance_m, "too_close": rep.condition == TOO_CLOSE, "condition": rep.condition,
+                "quality": rep.signal_quality, "ms": ms, "reason": m.reason}
 
 
 def rel_err(reported: float | None, truth: float) -> float | None:
