@@ -29,6 +29,7 @@ from uav_depth.core.errors import ConfigError, FileFormatError
 from uav_depth.core.keys import Key, section_values
 from uav_depth.daemon.liveview import LiveViewConfig
 from uav_depth.daemon.mavlink_enums import orientation_code
+from uav_depth.daemon.obstacles import ObstacleConfig
 from uav_depth.daemon.ranging import RangingConfig
 from uav_depth.daemon.rigwatch import RigCheckConfig
 from uav_depth.daemon.sources import BUILTIN, SourceTable, source_config_from_dict, source_keys
@@ -156,7 +157,7 @@ class ServiceConfig:
 
 SECTION_CLASSES: dict[str, type] = {"ranging": RangingConfig, "mavlink": MavlinkConfig,
                                     "logging": LoggingConfig, "service": ServiceConfig, "liveview": LiveViewConfig,
-                                    "rig_check": RigCheckConfig}
+                                    "rig_check": RigCheckConfig, "obstacle_distance": ObstacleConfig}
 TOP_KEYS = ("source", "calibration", "params_file", *SECTION_CLASSES)
 
 
@@ -173,6 +174,7 @@ class RunConfig:
     service: ServiceConfig = ServiceConfig()
     liveview: LiveViewConfig = LiveViewConfig()
     rig_check: RigCheckConfig = RigCheckConfig()
+    obstacle_distance: ObstacleConfig = ObstacleConfig()
     origin: Mapping[str, str] = field(default_factory=dict, compare=False)   # key -> where it came from
 
     @property

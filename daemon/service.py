@@ -43,6 +43,7 @@ from uav_depth.daemon.config import RunConfig
 from uav_depth.daemon.framelog import FrameLogger, frame_meta
 from uav_depth.daemon.health import Health, Stats, status_line
 from uav_depth.daemon.liveview import LiveView
+from uav_depth.daemon.obstacles import Field, ObstacleSender, encoder, limits_cm
 from uav_depth.daemon.rigwatch import RigWatch
 from uav_depth.daemon.mavlink_out import MavlinkLink, SendClock
 from uav_depth.daemon.notify import Notifier
@@ -101,6 +102,7 @@ class Service:
         self.framelog: FrameLogger | None = None
         self.liveview: LiveView | None = None       # liveview.enabled: the read-only web page
         self.rigwatch: RigWatch | None = None       # rig_check.interval_s > 0: the periodic rig check
+        self.obstacles: ObstacleSender | None = None  # obstacle_distance.enabled: OBSTACLE_DISTANCE
         self.state = "boot"
         self.camera_ok = False
         self.ended: str | None = None
@@ -214,6 +216,8 @@ class Service:
         if cfg.rig_check.interval_s > 0:
             self.rigwatch = RigWatch(cfg.rig_check, lambda text: self.link.statustext(text, "warning"))
             self.rigwatch.start(self._stopping)
+        if cfg.obstacle_distance.enabled:
+            self.obstacles = self._obstacle_sender().start(self._stopping)
         for name, target in (("capture", self.capture.run), ("stereo", self._stereo_loop)):
             t = threading.Thread(target=target, name=name, daemon=True)
             self._threads[name] = t
@@ -223,6 +227,14 @@ class Service:
                                         since=self.stages.signature)
             self._watcher.start(self._stopping)
             log.info("watching %s for new parameters (%s)", cfg.params_file, "inotify + poll")
+
+    def _obstacle_sender(self) -> ObstacleSender:
+        c, clock, stype = self.calibration, self.clock, self.clock.sensor_type
+        lim = lambda: limits_cm(self._limits().min_distance_m, self._limits().max_distance_m)  # noqa: E731
+        return ObstacleSender(self.config.obstacle_distance, Field(c.width, c.focal_px, c.principal_point[0]),
+                              c.focal_px * c.baseline_m, self.config.ranging.max_age_ms / 1000.0,
+                              lambda: self.stage.params, lim,
+                              lambda r: self.link.send(encoder(r, stype)), clock.t_start)
 
     def _view_status(self) -> dict[str, Any]:
         clock = self.clock
@@ -298,6 +310,8 @@ class Service:
             self.liveview.offer(left, result.disparity, est, self.roi, stage.params)
         if self.rigwatch is not None:
             self.rigwatch.offer(left, right)
+        if self.obstacles is not None:
+            self.obstacles.offer(left, right, frame.t_capture)
         if self.framelog is not None:
             self.framelog.consider(frame.index, left, right,
                                    frame_meta(frame, est, self.t0, self.config.source_kind, self.roi), frame.reference,
@@ -350,6 +364,8 @@ class Service:
                 abandoned.append(f"the {name} thread{self.health.abandoned_detail(name)}")
         if self._watcher is not None and not self._watcher.join(left()):
             abandoned.append("the parameter watcher")
+        if self.obstacles is not None and not self.obstacles.join(left()):
+            abandoned.append("the obstacle pass")
         if self.rigwatch is not None and not self.rigwatch.join(left()):
             abandoned.append("the rig check")
         if self.liveview is not None and not self.liveview.close(left()):
