@@ -40,6 +40,7 @@ import numpy as np
 from uav_depth.core.disparity import DisparityPipeline
 from uav_depth.core.keys import Key
 from uav_depth.core.params import StereoParams
+from uav_depth.daemon.mavlink_enums import cm_down, wire_range_cm
 
 log = logging.getLogger("uav_depth.obstacles")
 
@@ -141,14 +142,14 @@ def bins_cm(ranges_m: np.ndarray, confident: np.ndarray, min_cm: int, max_cm: in
         elif r * 100.0 > max_cm:
             out.append(max_cm + 1)
         else:
-            out.append(int(min(max_cm, max(min_cm + 1, round(r * 100.0)))))
+            out.append(int(min(max_cm, max(min_cm + 1, cm_down(r)))))   # rounded down: never farther
     return out
 
 
 def limits_cm(min_distance_m: float, max_distance_m: float) -> tuple[int, int]:
-    """(min, max) cm as DISTANCE_SENSOR carries them (mavlink_out.distance_report's rounding), max <= 65533."""
-    max_cm = max(2, min(65533, int(math.floor(max_distance_m * 100.0))))
-    return max(1, min(max_cm - 1, int(math.ceil(min_distance_m * 100.0)))), max_cm
+    """(min, max) cm as DISTANCE_SENSOR carries them (mavlink_enums.wire_range_cm), max <= 65533."""
+    min_cm, max_cm = wire_range_cm(min_distance_m, max_distance_m)
+    return min_cm, min(max_cm, 65533)
 
 
 def pass_params(params: StereoParams, scale: float) -> StereoParams:

@@ -275,6 +275,7 @@ class Estimate:
     params_hash: str
     truth_m: float | None = None
     timings_ms: Mapping[str, float] = field(default_factory=dict)
+    too_close: bool = False      # an object is nearer than the minimum range (the wire says so)
 
     @property
     def distance_m(self) -> float | None:

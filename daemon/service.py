@@ -234,7 +234,10 @@ class Service:
         return ObstacleSender(self.config.obstacle_distance, Field(c.width, c.focal_px, c.principal_point[0]),
                               c.focal_px * c.baseline_m, self.config.ranging.max_age_ms / 1000.0,
                               lambda: self.stage.params, lim,
-                              lambda r: self.link.send(encoder(r, stype)), clock.t_start)
+                              lambda r: self.link.send_measurement("OBSTACLE_DISTANCE", encoder(r, stype),
+                                                                   r.time_usec / 1e6 + clock.t_start,
+                                                                   self.config.ranging.max_age_ms / 1000.0),
+                              clock.t_start)
 
     def _view_status(self) -> dict[str, Any]:
         clock = self.clock
@@ -301,10 +304,13 @@ class Service:
                        timings)
         self.last_estimate = est
         if not m.valid:
-            self.estimate = est        # the newest frame measured nothing: say so at the next tick
+            self.estimate = est        # the newest frame measured nothing: the wire goes blind
         elif self._gate.accept(m.distance_m, frame.t_capture):
             self.estimate = est
         # else: a single-frame jump, held back; the previous estimate ages out on its own
+        clock = self.clock
+        if clock is not None:
+            clock.notify()             # sent now, not at the next tick
         self.stats.add(t_done, timings)
         if self.liveview is not None:   # references only: nothing is drawn unless someone watches
             self.liveview.offer(left, result.disparity, est, self.roi, stage.params)

@@ -79,7 +79,7 @@ def test_bins_never_zero_never_clear_when_blind():
     out = bins_cm(ranges, confident, 20, 700)
     assert out[:4] == [21, 123, 701, UINT16_UNKNOWN]       # too close -> min+1; far -> max+1; nothing -> unknown
     assert set(out[4:]) == {UINT16_UNKNOWN} and 0 not in out
-    assert limits_cm(0.2, 7.0) == (20, 700)
+    assert limits_cm(0.2, 7.0) == (19, 700)          # as DISTANCE_SENSOR: the minimum rounded down, less 1
 
 
 #: flying parameters for 640x360 (search range 64: 0.34 m .. far); the pass matches at half resolution
