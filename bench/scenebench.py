@@ -105,7 +105,7 @@ class Measurer:
         m = self.ranger.measure(result)
         ms = (time.perf_counter() - t0) * 1e3
         now = time.monotonic()
-        est = Estimate(m, self.ranger.limits, now, now, 0, "bench")
+        est = Estimate(m, self.ranger.limits, now, now, 0, "bench", too_close=m.too_close)   # as the service does
         rep = distance_report(est, self.ranger.limits, now, 1.0, now)
         return {"reported_m": rep.current_distance / 100.0 if rep.valid else None,
                 "ranged_m": m.distance_m, "too_close": rep.condition == TOO_CLOSE, "condition": rep.condition,
