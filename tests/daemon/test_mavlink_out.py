@@ -290,3 +290,31 @@ def test_serial_link_through_a_pseudo_terminal():
         link.close()
         os.close(master)
         os.close(slave)
+
+
+def test_bytes_the_kernel_holds_past_their_deadline_are_discarded_with_a_reset():
+    # a TCP peer whose window is closed (tiny receive buffer, never reads, never answers TIMESYNC):
+    # what waits in our kernel would arrive old, so the connection is reset instead
+    port = free_port(socket.SOCK_STREAM)
+    cfg = MavlinkConfig(url=f"tcpin:127.0.0.1:{port}", rate_hz=200)
+    link = MavlinkLink(cfg).start()
+    pub = Publisher(period_s=0.005)
+    clock = SendClock(link, cfg, 0.2, estimate=lambda: pub.est, limits=lambda: LIMITS, state=lambda: "active").start()
+    peer = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    peer.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1024)
+    try:
+        assert link.wait_connected(2)
+        peer.connect(("127.0.0.1", port))
+        deadline = time.monotonic() + 20
+        while link.discards == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert link.discards >= 1
+        peer.settimeout(2)
+        with pytest.raises(ConnectionResetError):       # after what its buffer held: the reset
+            while peer.recv(65536):
+                pass
+    finally:
+        clock.stop()
+        pub.close()
+        link.close()
+        peer.close()
