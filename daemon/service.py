@@ -295,16 +295,16 @@ class Service:
         t_rect = time.monotonic()
         result = stage.pipeline.run(left, right)
         t_disp = time.monotonic()
-        m = stage.ranger.measure(result)
+        m = self._gate.near(stage.ranger.measure(result), stage.ranger.limits.min_distance_m, frame.t_capture)
         t_done = time.monotonic()
         timings = {"queue": (t_start - frame.t_capture) * 1e3, "rectify": (t_rect - t_start) * 1e3,
                    "disparity": (t_disp - t_rect) * 1e3, "ranging": (t_done - t_disp) * 1e3,
                    "latency": (t_done - frame.t_capture) * 1e3}
         est = Estimate(m, stage.ranger.limits, frame.t_capture, t_done, frame.index, stage.hash, frame.truth_m,
-                       timings)
+                       timings, too_close=m.too_close)
         self.last_estimate = est
         if not m.valid:
-            self.estimate = est        # the newest frame measured nothing: the wire goes blind
+            self.estimate = est        # nothing measured (the wire goes blind), or too close: never held back
         elif self._gate.accept(m.distance_m, frame.t_capture):
             self.estimate = est
         # else: a single-frame jump, held back; the previous estimate ages out on its own
