@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import os
 import random
+import re
 import socket
 import statistics
 import subprocess
@@ -50,7 +51,7 @@ def start_daemon(tmp: Path, url: str, fps: float) -> subprocess.Popen:
                       "scene": {"width": 320, "height": 240, "focal_px": 200.0, "branch_distance_m": 0.8,
                                 "branch_radius_m": 0.04, "seed": 1}},
            "params_file": str(params), "ranging": {"max_age_ms": MAX_AGE_MS},
-           "mavlink": {"url": url, "rate_hz": max(20.0, fps)}}
+           "mavlink": {"url": url, "rate_hz": max(20.0, fps)}, "service": {"status_interval_s": 1.0}}
     (tmp / "run.yaml").write_text(yaml.safe_dump(cfg))
     return subprocess.Popen([sys.executable, "-m", "uav_depth.cli.main", "run", "--config", str(tmp / "run.yaml")],
                             stdout=subprocess.DEVNULL, stderr=open(tmp / f"daemon-{url.split(':')[0]}.log", "w"))
@@ -140,8 +141,13 @@ def flood(args) -> None:
             ages = sorted(age_ms(t, m) for t, m in peer.timed("DISTANCE_SENSOR"))
             print(f"  max gap under floods {worst:.1f} ms (goal <= 100); RSS {rss0 / 1024:.1f} -> {rss1 / 1024:.1f} MB "
                   f"({(rss1 - rss0) / 1024:+.1f} MB, goal <= 5)")
+            # the daemon's status line gives capture -> estimate (median of its last 200 frames)
+            est = [float(m.group(1)) for m in re.finditer(r"latency (\d+) ms", (Path(d) / "daemon-udpout.log").read_text())]
+            est_ms = statistics.median(est) if est else float("nan")
             print(f"  capture to arrival over loopback: median {ages[len(ages) // 2]:.0f} ms, "
-                  f"p95 {ages[int(0.95 * len(ages))]:.0f} ms, max {ages[-1]:.0f} ms ({len(ages)} readings)")
+                  f"p95 {ages[int(0.95 * len(ages))]:.0f} ms, max {ages[-1]:.0f} ms ({len(ages)} readings); "
+                  f"capture to estimate (daemon): median {est_ms:.0f} ms, so the link adds about "
+                  f"{ages[len(ages) // 2] - est_ms:.0f} ms")
         finally:
             proc.terminate()
             proc.wait(20)
