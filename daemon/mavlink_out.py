@@ -195,6 +195,11 @@ PROBE_TIMEOUT_S = 0.1
 PEER_SILENT_S = 3.0
 #: Messages waiting to be written, at most (the oldest is dropped first).
 QUEUE_MAX = 32
+#: Inbound bytes parsed per second, at most (a token bucket with a burst of READ_BURST): well above what
+#: an autopilot sends (tens of KB/s with every stream on), and a flood beyond it is left to the kernel,
+#: which drops it, instead of taking the CPU from the stereo stage.
+READ_RATE = 128 * 1024
+READ_BURST = 32 * 1024
 
 
 @dataclass
@@ -242,6 +247,7 @@ class MavlinkLink:
         self._thread: threading.Thread | None = None
         self._backoff = (min(reconnect_min_s, RECONNECT_MAX_S), min(max(reconnect_min_s, reconnect_max_s),
                                                                    RECONNECT_MAX_S))
+        self._rx_tokens, self._rx_t = float(READ_BURST), clock()
         self._probe: tuple[int, float] | None = None      # (ts1, sent at) of the unanswered TIMESYNC request
         self._peer_answers = False                        # the stream peer has answered a TIMESYNC request
         self.autopilot: tuple[int, int] | None = None
@@ -471,14 +477,18 @@ class MavlinkLink:
             raise ConnectionError("connection reset")
         with self._qlock:
             pending = bool(self._queue)
-        ready = wait_readable([t.fileno(), self._wake_r], 0.0 if pending else 0.05)
+        self._rx_tokens = min(float(READ_BURST), self._rx_tokens + (now - self._rx_t) * READ_RATE)
+        self._rx_t = now
+        reading = self._rx_tokens > 0              # over the inbound budget: the kernel holds (or drops) it
+        fds = [t.fileno(), self._wake_r] if reading else [self._wake_r]
+        ready = wait_readable(fds, 0.0 if pending else (0.05 if reading else 0.02))
         if self._wake_r in ready:
             try:
                 os.read(self._wake_r, 4096)
             except BlockingIOError:
                 pass
-        if t.fileno() in ready:
-            self._read(t)
+        if reading and t.fileno() in ready:
+            self._rx_tokens -= self._read(t)
 
     def _peer_reading(self, now: float) -> bool:
         if not self._peer_answers or self._probe is None:
@@ -518,8 +528,10 @@ class MavlinkLink:
                     self._tx.seq = (self._tx.seq + 1) % 256
                     self._probe = (ts1, now)
 
-    def _read(self, t: Transport) -> None:
-        for data, addr in t.read():
+    def _read(self, t: Transport) -> int:
+        """Parse what is there (bounded by the transport's read budget); the number of bytes read."""
+        got = t.read()
+        for data, addr in got:
             if isinstance(t, UdpIn) and t.peer is None:
                 self._bind_udpin(t, data, addr)
                 continue
@@ -528,6 +540,7 @@ class MavlinkLink:
                     self.bad += 1
                     continue
                 self._dispatch(msg)
+        return sum(len(data) for data, _ in got)
 
     def _is_our_autopilot(self, msg: Any) -> bool:
         want = self.config.target_system

@@ -108,6 +108,7 @@ class Service:
         self.ended: str | None = None
         self.t0 = time.monotonic()
         self._mailbox = Mailbox()
+        self.frames_done = 0     # frames the stereo stage finished (processed, skipped or failed)
         self.capture = Capture(self.source, svc, self._mailbox, self._stopping, on_lost=self._camera_lost,
                                on_back=self._camera_back, on_end=self._source_ended,
                                in_source=self.health.in_source)
@@ -285,6 +286,7 @@ class Service:
                 log.exception("frame %d failed", frame.index)
             finally:
                 self.health.busy_since = None
+                self.frames_done += 1
 
     def _process(self, frame: Frame) -> None:
         stage = self.stage               # one read: a swap lands between frames, never inside one
@@ -334,12 +336,23 @@ class Service:
         return status_line(self.stats, self.last_estimate, self.clock, stage.hash if stage else None,
                            self.camera_ok)
 
+    def _drain(self, stop: threading.Event) -> None:
+        """A finite source ended: let the frames in flight finish (bounded), then say what was dropped."""
+        deadline = time.monotonic() + self.config.service.stall_timeout_s
+        mb, delivered = self._mailbox, self.capture.frames_in
+        while self.frames_done + mb.dropped < delivered and time.monotonic() < deadline and not stop.wait(0.02):
+            pass
+        log.info("source delivered %d frames: %d processed, %d dropped (a newer frame replaced one not yet "
+                 "processed%s)", delivered, self.frames_done, mb.dropped,
+                 "" if getattr(self.source, "lossless", False) else "; source.lossless: true processes every frame")
+
     def run(self, stop: threading.Event) -> ShutdownReport:
         """Start, serve until ``stop`` is set (or a finite source ends), shut down. Raises on start-up failure."""
         self.startup(stop)
         try:
             while not stop.wait(0.1):
                 if self.ended:
+                    self._drain(stop)
                     break
                 if self._reload_now.is_set():
                     self._reload_now.clear()
