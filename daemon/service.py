@@ -89,7 +89,7 @@ class Service:
                                                               svc.reconnect_max_s)
         self.notifier = notifier if notifier is not None else Notifier()
         self.health = Health(svc, self.notifier, self.status_line)
-        self.stages = StageHolder(config.params_file, config.ranging, self.link.statustext)
+        self.stages = StageHolder(config.params_file, config.ranging, self.link.statustext, self._stopping)
         self.estimate: Estimate | None = None       # what the send clock reads; replaced by one assignment
         self.last_estimate: Estimate | None = None   # newest frame's result, accepted or not
         self.calibration: Calibration | None = None
@@ -304,7 +304,10 @@ class Service:
                     break
                 if self._reload_now.is_set():
                     self._reload_now.clear()
-                    self.reload_params()
+                    if self._watcher is not None:
+                        self._watcher.poke()     # read on the watcher's thread: the loop never waits
+                    else:
+                        self.reload_params()
                 self.health.tick(self.healthy)
         finally:
             report = self.shutdown()
