@@ -13,6 +13,7 @@ import importlib
 import sys
 from typing import Sequence
 
+from uav_depth.cli.signals import SIGNALS
 from uav_depth.core.errors import CalibrationError, ConfigError, DependencyError, UavDepthError
 
 #: Exit codes. EXIT_CONFIG is sysexits' EX_CONFIG: the systemd unit lists it in
@@ -21,6 +22,8 @@ EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_CONFIG = 0, 1, 2, 130, 7
 #: sysexits' EX_UNAVAILABLE: `run` could not find its camera at start-up. Not in
 #: RestartPreventExitStatus, so systemd retries until the camera appears.
 EXIT_UNAVAILABLE = 69
+#: Subcommands that run the daemon: their signal handlers go in before anything else is imported.
+DAEMONS = ("run", "sitl")
 
 #: name -> (module, one-line help). Modules are relative to uav_depth.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -83,6 +86,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def entry() -> None:  # console_scripts target
+    if sys.argv[1:2] and sys.argv[1] in DAEMONS:
+        SIGNALS.install(at_exec=True)   # before the subcommand table and any slow import (see cli.signals)
     sys.exit(main())
 
 

@@ -112,6 +112,7 @@ class LoggingConfig:
     dir: Path | None = None
     every_n: int = 10
     max_mb: float = 2000.0
+    min_free_mb: float = 500.0
     queue_frames: int = 4
 
     KEYS = (
@@ -120,6 +121,8 @@ class LoggingConfig:
         Key("every_n", "int", 10, "log every Nth processed frame; 0: only on demand (SIGUSR1)", 0, 1_000_000),
         Key("max_mb", "float", 2000.0, "disk budget of the whole directory, MB; oldest sessions are removed first",
             1.0, 10_000_000.0),
+        Key("min_free_mb", "float", 500.0, "free-space floor of the log's file system, MB: logging stops (the "
+            "daemon flies on) rather than take the disk below it", 0.0, 1.0e9),
         Key("queue_frames", "int", 4, "frames waiting for the writer; more are dropped, never waited for", 1, 1000),
     )
 

@@ -36,18 +36,18 @@ from pathlib import Path
 from typing import Any, Callable
 
 from uav_depth.core.calibration import Calibration
-from uav_depth.core.errors import CalibrationError, ConfigError, FrameError, SourceError, UavDepthError
+from uav_depth.core.errors import ConfigError, FrameError, SourceError, UavDepthError
 from uav_depth.core.rectify import Rectifier
 from uav_depth.daemon.capture import Capture, Mailbox
 from uav_depth.daemon.config import RunConfig
-from uav_depth.daemon.framelog import FrameLogger, frame_meta
+from uav_depth.daemon.framelog import FrameLogger, ensure_log_dir, frame_meta
 from uav_depth.daemon.health import Health, Stats, status_line
 from uav_depth.daemon.mavlink_out import MavlinkLink, SendClock
 from uav_depth.daemon.notify import Notifier
 from uav_depth.daemon.ranging import Estimate, OutlierGate, RangeLimits, resolve_roi
 from uav_depth.daemon.reload import FileWatcher
 from uav_depth.daemon.sources import Frame, FrameSource, create_source
-from uav_depth.daemon.stage import Stage, StageHolder
+from uav_depth.daemon.stage import Stage, StageHolder, resolve_calibration
 
 log = logging.getLogger("uav_depth.service")
 
@@ -174,14 +174,7 @@ class Service:
         self.source.open()      # SourceError when the camera is missing: fails fast, says what
         self.camera_ok = True
         log.info("source: %s", self.source.describe())
-        calib = cfg.calibration or self.source.calibration
-        if calib is None:
-            raise CalibrationError(f"source {cfg.source_kind} carries no calibration: set calibration: FILE "
-                                   "(focal_px, baseline_m, width, height; K, D, R, T for raw frames)")
-        if cfg.calibration is not None and self.source.calibration is not None \
-                and cfg.calibration != self.source.calibration:
-            log.warning("the config's calibration overrides the one the %s source carries", cfg.source_kind)
-        self.rectifier = Rectifier(calib)
+        self.rectifier = Rectifier(resolve_calibration(cfg.calibration, self.source.calibration, cfg.source_kind))
         self.calibration = self.rectifier.calibration
         self.roi = resolve_roi(cfg.ranging.roi, self.calibration.width, self.calibration.height)
         if hasattr(self.source, "truth_roi"):
@@ -194,6 +187,7 @@ class Service:
                  lim.min_distance_m, lim.max_distance_m)
         log.info("parameters: %s, hash %s", stage.origin, stage.hash)
         if cfg.logging.dir is not None:
+            ensure_log_dir(cfg.logging.dir)     # ConfigError: exit 78 before anything flies
             self.framelog = FrameLogger(cfg.logging, self.calibration, cfg.source_kind,
                                         on_stop=lambda why: self.link.statustext("uav-depth: logging stopped",
                                                                                  "warning")).start()

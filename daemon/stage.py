@@ -130,6 +130,17 @@ def build_stage(params: StereoParams, origin: str, ranging: RangingConfig, calib
     return stage
 
 
+def resolve_calibration(configured: Calibration | None, carried: Calibration | None, kind: str) -> Calibration:
+    """The calibration the daemon uses: the config's, else the one the source carries; CalibrationError if none."""
+    calib = configured or carried
+    if calib is None:
+        raise CalibrationError(f"source {kind} carries no calibration: set calibration: FILE "
+                               "(focal_px, baseline_m, width, height; K, D, R, T for raw frames)")
+    if configured is not None and carried is not None and configured != carried:
+        log.warning("the config's calibration overrides the one the %s source carries", kind)
+    return calib
+
+
 class StageHolder:
     """The current :class:`Stage` and the parameter file it came from.
 

@@ -45,9 +45,11 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from uav_depth.cli.signals import install_once
+
+    signals = install_once()
+
     import logging
-    import signal
-    import threading
     import time
     from pathlib import Path
 
@@ -61,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
         SitlConfig, TruthLog
 
     run_command.setup_logging(args.log_level)
+    run_command.log_signals_installed(signals)
     log = logging.getLogger("uav_depth.sitl")
     err = run_command.error_line("sitl")
     try:
@@ -81,9 +84,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"config valid: {config.summary()}; {sitl.describe(config.source.scene.branch_distance_m)}")
         return 0
 
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    stop = signals.stop
+    if stop.is_set():
+        return run_command.stopped_before_start(signals, "sitl")
     svc = config.service
     link = MavlinkLink(config.mavlink, svc.reconnect_min_s, svc.reconnect_max_s)
     tracker = PoseTracker(sitl, config.source.scene.branch_distance_m)
@@ -125,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
         truth.close()
         log.info("truth log %s: %s", path, truth.summary())
 
-    return run_command.serve(service, stop, "sitl", cleanup=close_truth)
+    return run_command.serve(service, signals, "sitl", cleanup=close_truth)
 
 
 def sitl_heading_deg(tracker) -> float:

@@ -50,6 +50,14 @@ class Config:
         return cls(**values)
 
 
+def _recorded_time(record: FrameRecord) -> Any:
+    """The frame's logged ``time_s``; None when its meta.json is unreadable (read() skips that frame)."""
+    try:
+        return record.load_meta().get("time_s")
+    except FileFormatError:
+        return None
+
+
 class ReplaySource:
     kind = "replay"
 
@@ -91,7 +99,7 @@ class ReplaySource:
 
     def _timing(self, frames: list[FrameRecord]) -> list[float]:
         if self.config.rate_hz is None:
-            stamps = [f.load_meta().get("time_s") for f in frames]
+            stamps = [_recorded_time(f) for f in frames]
             if all(isinstance(t, (int, float)) for t in stamps) and list(stamps) == sorted(stamps):
                 return [float(t) - float(stamps[0]) for t in stamps]
         rate = self.config.rate_hz or DEFAULT_RATE_HZ
