@@ -27,6 +27,7 @@ import yaml
 from uav_depth.core.calibration import Calibration, calibration_from_dict, load_calibration
 from uav_depth.core.errors import ConfigError
 from uav_depth.core.keys import Key, section_values
+from uav_depth.daemon.liveview import LiveViewConfig
 from uav_depth.daemon.mavlink_enums import orientation_code
 from uav_depth.daemon.ranging import RangingConfig
 from uav_depth.daemon.sources import BUILTIN, SourceTable, source_config_from_dict, source_keys
@@ -157,7 +158,7 @@ class ServiceConfig:
 
 
 SECTION_CLASSES: dict[str, type] = {"ranging": RangingConfig, "mavlink": MavlinkConfig,
-                                    "logging": LoggingConfig, "service": ServiceConfig}
+                                    "logging": LoggingConfig, "service": ServiceConfig, "liveview": LiveViewConfig}
 TOP_KEYS = ("source", "calibration", "params_file", *SECTION_CLASSES)
 
 
@@ -172,6 +173,7 @@ class RunConfig:
     mavlink: MavlinkConfig = MavlinkConfig()
     logging: LoggingConfig = LoggingConfig()
     service: ServiceConfig = ServiceConfig()
+    liveview: LiveViewConfig = LiveViewConfig()
     origin: Mapping[str, str] = field(default_factory=dict, compare=False)   # key -> where it came from
 
     @property
@@ -181,7 +183,8 @@ class RunConfig:
     def summary(self) -> str:
         return (f"source {self.source_kind}, mavlink {self.mavlink.url} at {self.mavlink.rate_hz:g} Hz, "
                 f"params {self.params_file or 'built-in defaults'}, "
-                f"logging {self.logging.dir or 'off'}")
+                f"logging {self.logging.dir or 'off'}"
+                + (f", live view http://{self.liveview.host}:{self.liveview.port}/" if self.liveview.enabled else ""))
 
 
 

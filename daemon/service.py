@@ -42,6 +42,7 @@ from uav_depth.daemon.capture import Capture, Mailbox
 from uav_depth.daemon.config import RunConfig
 from uav_depth.daemon.framelog import FrameLogger, ensure_log_dir, frame_meta
 from uav_depth.daemon.health import Health, Stats, status_line
+from uav_depth.daemon.liveview import LiveView
 from uav_depth.daemon.mavlink_out import MavlinkLink, SendClock
 from uav_depth.daemon.notify import Notifier
 from uav_depth.daemon.ranging import Estimate, OutlierGate, RangeLimits, resolve_roi
@@ -97,6 +98,7 @@ class Service:
         self.roi: tuple[int, int, int, int] | None = None
         self.clock: SendClock | None = None
         self.framelog: FrameLogger | None = None
+        self.liveview: LiveView | None = None       # liveview.enabled: the read-only web page
         self.state = "boot"
         self.camera_ok = False
         self.ended: str | None = None
@@ -198,6 +200,9 @@ class Service:
         self.clock = SendClock(self.link, cfg.mavlink, cfg.ranging.max_age_ms / 1000.0,
                                estimate=lambda: self.estimate, limits=self._limits,
                                state=lambda: self.state).start()
+        if cfg.liveview.enabled:
+            c = self.calibration
+            self.liveview = LiveView.bind(cfg.liveview, c.focal_px * c.baseline_m, self._view_status)
         for name, target in (("capture", self.capture.run), ("stereo", self._stereo_loop)):
             t = threading.Thread(target=target, name=name, daemon=True)
             self._threads[name] = t
@@ -207,6 +212,11 @@ class Service:
                                         since=self.stages.signature)
             self._watcher.start(self._stopping)
             log.info("watching %s for new parameters (%s)", cfg.params_file, "inotify + poll")
+
+    def _view_status(self) -> dict[str, Any]:
+        clock = self.clock
+        return {"state": self.state, "fps": self.stats.fps(time.monotonic()), "camera_ok": self.camera_ok,
+                "wire": clock.last_report if clock else None}
 
     def _limits(self) -> RangeLimits:
         stage = self.stage
@@ -273,6 +283,8 @@ class Service:
             self.estimate = est
         # else: a single-frame jump, held back; the previous estimate ages out on its own
         self.stats.add(t_done, timings)
+        if self.liveview is not None:   # references only: nothing is drawn unless someone watches
+            self.liveview.offer(left, result.disparity, est, self.roi, stage.params)
         if self.framelog is not None:
             self.framelog.consider(frame.index, left, right,
                                    frame_meta(frame, est, self.t0, self.config.source_kind, self.roi), frame.reference,
@@ -328,6 +340,8 @@ class Service:
                 abandoned.append(f"the {name} thread{self.health.abandoned_detail(name)}")
         if self._watcher is not None and not self._watcher.join(left()):
             abandoned.append("the parameter watcher")
+        if self.liveview is not None and not self.liveview.close(left()):
+            abandoned.append("the live view server")
         if self.framelog is not None:
             lost = self.framelog.close(left())
             if lost:
