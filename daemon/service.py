@@ -52,6 +52,9 @@ from uav_depth.daemon.stage import Stage, StageHolder, resolve_calibration
 
 log = logging.getLogger("uav_depth.service")
 
+#: The values of :attr:`Service.condition`.
+CONDITIONS = ("starting", "measuring", "camera_lost", "params_unusable", "shutting_down")
+
 
 @dataclass(frozen=True)
 class ShutdownReport:
@@ -134,6 +137,29 @@ class Service:
     @property
     def stats(self) -> Stats:
         return self.health.stats
+
+    @property
+    def condition(self) -> str:
+        """What the service can say about the distance now, for the link (one of :data:`CONDITIONS`).
+
+        ``starting``: no frame processed yet; ``camera_lost``: the source stopped
+        delivering (reconnecting); ``params_unusable``: the configured parameter file
+        is missing, so the built-in manual defaults run (a refused *new* file keeps the
+        last good parameters and is not this: see ``stages.rejected``);
+        ``shutting_down``: shutdown began; ``measuring``: frames flow through a stage
+        built from the configured parameters (each estimate still says whether it
+        measured, and how old it is).
+        """
+        if self._stopping.is_set():
+            return "shutting_down"
+        if not self._first_frame.is_set():
+            return "starting"
+        if not self.camera_ok:
+            return "camera_lost"
+        stage = self.stage
+        if self.config.params_file is not None and (stage is None or stage.origin != str(self.config.params_file)):
+            return "params_unusable"
+        return "measuring"
 
     def reload_params(self, path: Path | None = None) -> bool:
         """Re-read the parameter file (see :meth:`StageHolder.reload`). Never raises."""

@@ -71,7 +71,7 @@ class ReplaySource:
         self._times: list[float] = []
         self._i = 0
         self._lap = 0
-        self._t0 = 0.0
+        self._t0: float | None = None
 
     def describe(self) -> str:
         rate = f"{self.config.rate_hz:g} fps" if self.config.rate_hz else "recorded timing"
@@ -95,7 +95,8 @@ class ReplaySource:
         self._times = self._timing(frames)
         self._i = 0
         self._lap = 0
-        self._t0 = self.clock()
+        self._t0 = None       # pacing starts at the first read: start-up work after open() (the
+                              # parameters' test render) must not make the first frames late
 
     def _timing(self, frames: list[FrameRecord]) -> list[float]:
         if self.config.rate_hz is None:
@@ -117,6 +118,8 @@ class ReplaySource:
             self._i = 0
             self._lap += 1
         lap_s = self._times[-1] + (self._times[1] - self._times[0] if len(self._times) > 1 else 0.1)
+        if self._t0 is None:
+            self._t0 = self.clock()
         due = self._t0 + self._lap * lap_s + self._times[self._i]
         wait = due - self.clock()
         if wait > timeout_s:
