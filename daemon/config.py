@@ -30,6 +30,7 @@ from uav_depth.core.keys import Key, section_values
 from uav_depth.daemon.liveview import LiveViewConfig
 from uav_depth.daemon.mavlink_enums import orientation_code
 from uav_depth.daemon.ranging import RangingConfig
+from uav_depth.daemon.rigwatch import RigCheckConfig
 from uav_depth.daemon.sources import BUILTIN, SourceTable, source_config_from_dict, source_keys
 from uav_depth.core.validate import fmt, in_range, number
 from uav_depth.core.yamlfile import load_yaml_file
@@ -158,7 +159,8 @@ class ServiceConfig:
 
 
 SECTION_CLASSES: dict[str, type] = {"ranging": RangingConfig, "mavlink": MavlinkConfig,
-                                    "logging": LoggingConfig, "service": ServiceConfig, "liveview": LiveViewConfig}
+                                    "logging": LoggingConfig, "service": ServiceConfig, "liveview": LiveViewConfig,
+                                    "rig_check": RigCheckConfig}
 TOP_KEYS = ("source", "calibration", "params_file", *SECTION_CLASSES)
 
 
@@ -174,6 +176,7 @@ class RunConfig:
     logging: LoggingConfig = LoggingConfig()
     service: ServiceConfig = ServiceConfig()
     liveview: LiveViewConfig = LiveViewConfig()
+    rig_check: RigCheckConfig = RigCheckConfig()
     origin: Mapping[str, str] = field(default_factory=dict, compare=False)   # key -> where it came from
 
     @property

@@ -43,6 +43,7 @@ from uav_depth.daemon.config import RunConfig
 from uav_depth.daemon.framelog import FrameLogger, ensure_log_dir, frame_meta
 from uav_depth.daemon.health import Health, Stats, status_line
 from uav_depth.daemon.liveview import LiveView
+from uav_depth.daemon.rigwatch import RigWatch
 from uav_depth.daemon.mavlink_out import MavlinkLink, SendClock
 from uav_depth.daemon.notify import Notifier
 from uav_depth.daemon.ranging import Estimate, OutlierGate, RangeLimits, resolve_roi
@@ -102,6 +103,7 @@ class Service:
         self.clock: SendClock | None = None
         self.framelog: FrameLogger | None = None
         self.liveview: LiveView | None = None       # liveview.enabled: the read-only web page
+        self.rigwatch: RigWatch | None = None       # rig_check.interval_s > 0: the periodic rig check
         self.state = "boot"
         self.camera_ok = False
         self.ended: str | None = None
@@ -229,6 +231,9 @@ class Service:
         if cfg.liveview.enabled:
             c = self.calibration
             self.liveview = LiveView.bind(cfg.liveview, c.focal_px * c.baseline_m, self._view_status)
+        if cfg.rig_check.interval_s > 0:
+            self.rigwatch = RigWatch(cfg.rig_check, lambda text: self.link.statustext(text, "warning"))
+            self.rigwatch.start(self._stopping)
         for name, target in (("capture", self.capture.run), ("stereo", self._stereo_loop)):
             t = threading.Thread(target=target, name=name, daemon=True)
             self._threads[name] = t
@@ -311,6 +316,8 @@ class Service:
         self.stats.add(t_done, timings)
         if self.liveview is not None:   # references only: nothing is drawn unless someone watches
             self.liveview.offer(left, result.disparity, est, self.roi, stage.params)
+        if self.rigwatch is not None:
+            self.rigwatch.offer(left, right)
         if self.framelog is not None:
             self.framelog.consider(frame.index, left, right,
                                    frame_meta(frame, est, self.t0, self.config.source_kind, self.roi), frame.reference,
@@ -366,6 +373,8 @@ class Service:
                 abandoned.append(f"the {name} thread{self.health.abandoned_detail(name)}")
         if self._watcher is not None and not self._watcher.join(left()):
             abandoned.append("the parameter watcher")
+        if self.rigwatch is not None and not self.rigwatch.join(left()):
+            abandoned.append("the rig check")
         if self.liveview is not None and not self.liveview.close(left()):
             abandoned.append("the live view server")
         if self.framelog is not None:

@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 import pytest
 import yaml
 
+from uav_depth.cli.benchmark import flight_params
+from uav_depth.core.params import save_params
 from uav_depth.daemon.mavlink_enums import mavutil
 
 TREE_NED = (3.0, 0.0, -2.0)
@@ -130,7 +132,11 @@ def valid(msg) -> bool:
 @pytest.fixture
 def flight(tmp_path):
     port = free_udp_port()
+    # The flight parameters for this camera (half scale, centre third): a frame stays well inside
+    # max_age_ms on two loaded cores, where the full-resolution defaults took up to a second.
+    save_params(flight_params(focal_px=375.0, baseline_m=0.063), tmp_path / "params.yaml")
     config = {
+        "params_file": "params.yaml",
         # 480x270 keeps a frame (render + SGBM + WLS) near 0.2 s on two shared cores.
         "source": {"kind": "synthetic", "fps": 5,
                    "scene": {"width": 480, "height": 270, "focal_px": 375.0, "baseline_m": 0.063,
