@@ -84,6 +84,7 @@ def serve(service, signals, command: str, cleanup=None) -> int:
     signals.attach(service.request_reload, service.request_log_frame)
     if stop.is_set():
         return stopped_before_start(signals, command, cleanup)
+    log_signals_installed(signals)
     try:
         report = service.run(stop)
     except (ConfigError, CalibrationError, FileFormatError, DependencyError) as exc:
@@ -117,6 +118,7 @@ def stopped_before_start(signals, command: str, cleanup=None) -> int:
 
     if cleanup is not None:
         cleanup()
+    log_signals_installed(signals)
     logging.getLogger("uav_depth.service").info("%s: stopped before start-up finished (%s)", command,
                                                  ", ".join(signals.received) or "stop requested")
     return 0
@@ -166,8 +168,7 @@ def run(args: argparse.Namespace) -> int:
     from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError
 
     setup_logging(args.log_level)
-    log_signals_installed(signals)
-    err = error_line("run")
+    err = error_line("run --check" if args.check else "run")
     try:
         config = load_run_config(args.config, overrides_from_args(args), sources=SOURCES)
     except (ConfigError, CalibrationError, FileFormatError) as exc:

@@ -78,7 +78,6 @@ def run(args: argparse.Namespace) -> int:
         ScriptedPose, SitlConfig, TruthLog, is_autopilot_heartbeat
 
     run_command.setup_logging(args.log_level)
-    run_command.log_signals_installed(signals)
     log = logging.getLogger("uav_depth.sitl")
     err = run_command.error_line("sitl")
     try:
