@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 
 from uav_depth.core.calibration import calibration_from_dict
-from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.core.disparity import flight_pipeline
 from uav_depth.core.params import DEFAULT_PARAMS, load_params
 from uav_depth.daemon.ranging import Ranger, RangingConfig, resolve_roi
 from uav_depth.daemon.stage import Stage, test_render
@@ -32,7 +32,7 @@ def main() -> None:
     for name, params, w, h, f in CASES:
         calib = calibration_from_dict({"focal_px": f, "baseline_m": 0.063, "width": w, "height": h})
         roi = resolve_roi(None, w, h)
-        stage = Stage(params, DisparityPipeline(params), Ranger(RangingConfig(), calib, roi, params), name)
+        stage = Stage(params, flight_pipeline(params), Ranger(RangingConfig(), calib, roi, params), name)
         t = time.monotonic()
         why, z = test_render(stage, w, h)
         ms = (time.monotonic() - t) * 1000

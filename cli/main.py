@@ -14,7 +14,7 @@ import sys
 from typing import Sequence
 
 from uav_depth.cli.signals import SIGNALS
-from uav_depth.core.errors import CalibrationError, ConfigError, DependencyError, UavDepthError
+from uav_depth.core.errors import CalibrationError, ConfigError, DependencyError, OutputExistsError, UavDepthError
 
 #: Exit codes. EXIT_CONFIG is sysexits' EX_CONFIG: the systemd unit lists it in
 #: RestartPreventExitStatus so a typo in a config does not restart-loop.
@@ -24,6 +24,8 @@ EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_CONFIG = 0, 1, 2, 130, 7
 EXIT_UNAVAILABLE = 69
 #: Subcommands that run the daemon: their signal handlers go in before anything else is imported.
 DAEMONS = ("run", "sitl")
+#: sysexits' EX_CANTCREAT: an output exists (a session) and --overwrite was not given.
+EXIT_CANTCREAT = 73
 
 #: name -> (module, one-line help). Modules are relative to uav_depth.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -80,6 +82,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except DependencyError as exc:
         print(f"uav-depth {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_ERROR
+    except OutputExistsError as exc:
+        print(f"uav-depth {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_CANTCREAT
     except ModuleNotFoundError as exc:
         # The drone's base install has no extras; a command that needs one says which.
         missing = DependencyError.from_missing(exc, f"uav-depth {args.command}")

@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from uav_depth.core.calibration import Calibration
-from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.core.disparity import DisparityPipeline, flight_pipeline
 from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError, ParameterWarning
 from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, check_image_size, load_params
 from uav_depth.daemon.ranging import Ranger, RangingConfig
@@ -122,7 +122,7 @@ def build_stage(params: StereoParams, origin: str, ranging: RangingConfig, calib
     warning = check_roi_against_compute(roi, params, w, h)
     if warning:
         log.warning("%s", warning)
-    stage = Stage(params, DisparityPipeline(params), ranger, origin)
+    stage = Stage(params, flight_pipeline(params), ranger, origin)
     why, z = test_render(stage, w, h)
     if why is not None:
         raise ConfigError("(parameters)", f"must measure a test render (random texture filling the view at "
