@@ -107,7 +107,11 @@ def run(args: argparse.Namespace) -> int:
     if stop.is_set():
         return run_command.stopped_before_start(signals, "sitl")
     svc = config.service
-    link = MavlinkLink(config.mavlink, svc.reconnect_min_s, svc.reconnect_max_s)
+    try:
+        link = MavlinkLink(config.mavlink, svc.reconnect_min_s, svc.reconnect_max_s)   # reads the signing key
+    except ConfigError as exc:
+        err(exc)
+        return EXIT_CONFIG
     tracker = PoseTracker(sitl, config.source.scene.branch_distance_m)
     recorder = None
     refused: list[str] = []
