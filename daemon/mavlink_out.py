@@ -67,7 +67,13 @@ def load_signing_key(path: Path) -> bytes:
     if st.st_mode & (stat.S_IRWXG | stat.S_IRWXO):
         raise ConfigError(key, "must not be accessible by group or others (chmod 600)",
                           f"{path} with mode {stat.S_IMODE(st.st_mode):04o}")
-    raw = path.read_bytes()
+    if stat.S_ISDIR(st.st_mode):
+        raise ConfigError(key, "must name a file, not a directory", str(path))
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:   # the service user cannot read it (root-owned 0600): one line, exit 78
+        raise ConfigError(key, f"must be readable by this user (uid {os.getuid()}): {exc.strerror}",
+                          str(path)) from exc
     text = raw.strip()
     try:
         if len(text) == 64:
