@@ -60,7 +60,7 @@ class RangingConfig:
     roi: tuple[int, int, int, int] | None = None
     min_valid_px: int = 100
     min_object_m2: float = SIGNIFICANT_AREA_M2
-    min_quality: int = 40
+    min_quality: int = 31
     min_confidence: float = 0.5
     max_age_ms: float = 300.0
     max_distance_m: float = 10.0
@@ -77,8 +77,8 @@ class RangingConfig:
         Key("min_object_m2", "float", SIGNIFICANT_AREA_M2,
             "smallest visible area, m^2 at its measured depth, that the nearest object needs to count "
             "(2 cm^2: a twig the saw or a propeller would hit)", 0.0, 1.0),
-        Key("min_quality", "int", 40, "readings of lower signal quality (2..100) are no measurement "
-            "(docs/ranging.md: correct readings score 60-75, wrong ones 2-30)", 0, 100),
+        Key("min_quality", "int", 31, "readings of lower signal quality (2..100) are no measurement "
+            "(docs/ranging.md: wrong readings scored 2-30, correct ones 39-85)", 0, 100),
         Key("min_confidence", "float", 0.5, "WLS confidence (0..1) a measured pixel needs to be used", 0.0, 1.0),
         Key("max_age_ms", "float", 300.0,
             "an estimate older than this (from frame capture) is never sent as valid; "
