@@ -40,6 +40,10 @@ import time
 #: few per datagram at most; anything bigger is junk and is dropped unread (a 64 KB datagram costs
 #: pymavlink's parser about 70 ms).
 MAX_DATAGRAM = 4096
+#: The first byte of every MAVLink frame (v2, v1). A MAVLink peer puts whole frames in a datagram, so a
+#: datagram that starts with anything else is junk and is dropped unread (parsing junk costs CPU that
+#: the stereo stage needs).
+MAVLINK_MAGIC = (0xFD, 0xFE)
 #: Datagrams read per call: the I/O thread writes between calls.
 DATAGRAMS_PER_READ = 8
 #: Bytes read per call, at most (a datagram is read whole): parsing 4 KB of junk takes pymavlink
@@ -118,7 +122,7 @@ class UdpOut(Transport):
                 break
             except ConnectionRefusedError:     # ICMP: nobody listens there (yet)
                 continue
-            if len(data) > MAX_DATAGRAM:
+            if len(data) > MAX_DATAGRAM or not data or data[0] not in MAVLINK_MAGIC:
                 self.dropped_datagrams += 1
                 continue
             out.append((data, self.peer))
@@ -165,7 +169,8 @@ class UdpIn(Transport):
                 break
             except ConnectionRefusedError:
                 continue
-            if len(data) > MAX_DATAGRAM or (self.peer is not None and addr != self.peer):
+            if (len(data) > MAX_DATAGRAM or not data or data[0] not in MAVLINK_MAGIC
+                    or (self.peer is not None and addr != self.peer)):
                 self.dropped_datagrams += 1      # junk, or a stranger: never parsed, never answered
                 continue
             if addr == self.peer:
