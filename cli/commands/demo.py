@@ -21,18 +21,21 @@ def run(args: argparse.Namespace) -> int:
     from uav_depth.core.params import DEFAULT_PARAMS
 
     try:
-        from uav_depth.tuning.evaluate import evaluate_frames, mean_scores
+        from uav_depth.tuning.frames import FrameSet, load_frame
+        from uav_depth.tuning.objective import FITNESS, evaluate
     except ImportError:
-        evaluate_frames = None
+        evaluate = None
     write_session(args.out, args.frames, args.seed, SceneConfig())
     print(f"synthetic session: {args.out} ({args.frames} frames, 1280x720)")
-    if evaluate_frames is None:
+    if evaluate is None:
         print("install uav-depth[tuning] to score it")
         return 0
-    scores = evaluate_frames(DEFAULT_PARAMS, iter_frames(args.out, require_reference=True))
-    print(f"{'frame':<28}{'mse':>9}{'psnr':>8}{'ssim':>7}{'bad2%':>8}{'valid':>7}{'ms':>7}")
-    for s in scores:
-        print(f"{s.id:<28}{s.mse:9.2f}{s.psnr:8.2f}{s.ssim:7.3f}{s.bad2:8.2f}{s.valid:7.3f}{s.ms:7.0f}")
-    m = mean_scores(scores)
-    print(f"{'mean':<28}{m['mse']:9.2f}{m['psnr']:8.2f}{m['ssim']:7.3f}{m['bad2']:8.2f}{m['valid']:7.3f}{m['ms']:7.0f}")
+    frames = FrameSet("demo", tuple(load_frame(r) for r in iter_frames(args.out, require_reference=True)))
+    ev = evaluate(DEFAULT_PARAMS, frames, FITNESS["flown"], full=True)
+    names = ("mae", "bad2", "density", "branch")
+    print("benchmark convention on the map the daemon ranges on (uav-depth evaluate --help)")
+    print(f"{'frame':<28}" + "".join(f"{n:>9}" for n in (*names, "ms")))
+    for f in ev.frame_metrics:
+        print(f"{f['id']:<28}" + "".join(f"{f[n]:9.3f}" for n in names) + f"{f['ms']:9.0f}")
+    print(f"{'mean':<28}" + "".join(f"{ev.metrics[n]:9.3f}" for n in names) + f"{ev.ms:9.0f}")
     return 0

@@ -1,4 +1,4 @@
-"""uav-depth evaluate LOGDIR [--params FILE] [--json]."""
+"""uav-depth evaluate LOGDIR [--params FILE] [--convention bench|paper] [--json]."""
 
 from __future__ import annotations
 
@@ -8,6 +8,11 @@ import argparse
 def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("logdir", help="a session or a directory of sessions (log layout)")
     p.add_argument("--params", help="parameter file (default: built-in manual baseline)")
+    p.add_argument("--convention", choices=("bench", "paper"), default="bench",
+                   help="bench (default): the map the daemon ranges on (confident measured pixels), error over "
+                        "ground-truth pixels with holes filled as the KITTI devkit does, density beside it, the "
+                        "unmatchable left strip left out, PSNR against a fixed peak; paper: the WLS map, invalid "
+                        "= 0, PSNR peak per frame (Lin et al. 2025)")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
 
 
@@ -15,35 +20,39 @@ def run(args: argparse.Namespace) -> int:
     import json
     import math
 
-    from uav_depth.core.errors import FileFormatError
+    from uav_depth.core.errors import FileFormatError, UavDepthError
     from uav_depth.core.params import DEFAULT_PARAMS, load_params
     from uav_depth.core.session import iter_frames
 
-    from uav_depth.tuning.evaluate import evaluate_frames, mean_scores
+    from uav_depth.tuning.frames import FrameSet, load_frame
+    from uav_depth.tuning.metrics import METRIC_NAMES
+    from uav_depth.tuning.objective import FITNESS, evaluate
     from uav_depth.tuning.reference.provenance import summarize_references
     from uav_depth.tuning.report import sources_text
 
     params = load_params(args.params) if args.params else DEFAULT_PARAMS
-    frames = list(iter_frames(args.logdir, require_reference=True))
-    scores = evaluate_frames(params, frames)
-    if not scores:
+    records = list(iter_frames(args.logdir, require_reference=True))
+    if not records:
         raise FileFormatError(f"{args.logdir}: no frame with a reference disparity (*_ref.npy/.pfm/.png)")
-    mean = mean_scores(scores)
-    references = summarize_references(frames)
+    frames = FrameSet("evaluate", tuple(load_frame(r) for r in records))
+    ev = evaluate(params, frames, FITNESS["flown" if args.convention == "bench" else "mse"], full=True,
+                  convention=args.convention)
+    if not ev.ok:
+        raise UavDepthError(f"{args.logdir}: these parameters cannot be scored: {ev.reason}")
+    names = [n for n in (*METRIC_NAMES[args.convention], "branch") if n in ev.metrics]
     region = "whole frame" if params.compute.whole_frame else f"compute.roi {list(params.compute.roi)}"
+    references = summarize_references(records)
     if args.json:
         clean = lambda v: None if isinstance(v, float) and not math.isfinite(v) else v  # noqa: E731
-        doc = {"params_hash": params.hash(), "scored": region, "references": references,
-               "frames": [{k: clean(v) for k, v in s.as_dict().items()} for s in scores],
-               "mean": {k: clean(v) for k, v in mean.items()}}
+        doc = {"params_hash": params.hash(), "scored": region, "convention": args.convention,
+               "references": references, "frames": [{k: clean(v) for k, v in f.items()} for f in ev.frame_metrics],
+               "mean": {k: clean(v) for k, v in {**ev.metrics, "ms": ev.ms}.items()}}
         print(json.dumps(doc, default=str))
         return 0
-    print(f"scored: {region}; measured against: "
-          + sources_text({src["description"]: src["frames"] for src in references["sources"]}))
-    print(f"{'frame':<28}{'mse':>9}{'psnr':>8}{'ssim':>7}{'bad1%':>8}{'bad2%':>8}{'valid':>7}{'ms':>7}")
-    for s in scores:
-        print(f"{s.id:<28}{s.mse:9.2f}{s.psnr:8.2f}{s.ssim:7.3f}{s.bad1:8.2f}{s.bad2:8.2f}{s.valid:7.3f}{s.ms:7.0f}")
-    m = mean
-    print(f"{'mean':<28}{m['mse']:9.2f}{m['psnr']:8.2f}{m['ssim']:7.3f}{m['bad1']:8.2f}{m['bad2']:8.2f}"
-          f"{m['valid']:7.3f}{m['ms']:7.0f}")
+    against = sources_text({src["description"]: src["frames"] for src in references["sources"]})
+    print(f"scored: {region}, {args.convention} convention; measured against: {against}")
+    print(f"{'frame':<28}" + "".join(f"{n:>9}" for n in (*names, "ms")))
+    for f in ev.frame_metrics:
+        print(f"{f['id']:<28}" + "".join(f"{f.get(n, math.nan):9.3f}" for n in names) + f"{f['ms']:9.0f}")
+    print(f"{'mean':<28}" + "".join(f"{ev.metrics[n]:9.3f}" for n in names) + f"{ev.ms:9.0f}")
     return 0
