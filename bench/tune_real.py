@@ -180,8 +180,10 @@ def main() -> int:
     for name, out, extra in runs:
         summary, wall, _ = tune(train, out, *budget, *extra)
         rows[name] = scores(test, out)
+        print(f"  {name}: tuned and scored at {time.perf_counter() - t_start:.0f} s", flush=True)
         sel = summary["selection"]
         cmp = summary["comparison"]
+        sel["base"] = sel["candidates"][0]
         notes.append(f"{name}: {wall:.0f} s, {summary['evaluated']} evaluated; chosen on {sel['on']} "
                      f"({'beats' if sel['beats_base'] else 'does NOT beat'} the base there); its own metric "
                      f"{summary['config']['metric']} train {sel['base']['train']:.4g} -> {sel['candidates'][sel['winner']]['train']:.4g}, "
@@ -207,3 +209,7 @@ def main() -> int:
             print(line)
     print(f"\ntotal {time.perf_counter() - t_start:.0f} s")
     return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

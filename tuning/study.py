@@ -234,8 +234,8 @@ class Study:
         for gen in range(self.config.generations):
             if self.stop.is_set():
                 raise self.interrupted()
-            if time.monotonic() > self._deadline:
-                self.timed_out = True
+            if (gen > 0 or run > 0) and time.monotonic() > self._deadline:
+                self.timed_out = True     # the first generation always runs: there is a result to report
                 break
             genomes = opt.ask()
             cands = [self.candidate(g) for g in genomes]
@@ -254,7 +254,7 @@ class Study:
         return res
 
     def run(self) -> StudyResult:
-        """Every run; with ``timeout_s``, no generation starts after it (each one started is finished, so
+        """Every run; with ``timeout_s``, no generation but the first starts after it (each one started is finished, so
         what was evaluated is a prefix of the full study and ``--resume`` continues it exactly)."""
         t0 = time.perf_counter()
         if self.timeout_s is not None:
@@ -263,9 +263,11 @@ class Study:
         seeds = np.random.SeedSequence(self.config.seed).spawn(self.config.runs)
         runs = []
         for i, s in enumerate(seeds):
+            run = self.run_one(i, s)
+            if run.proposals:
+                runs.append(run)
             if self.timed_out:
                 break
-            runs.append(self.run_one(i, s))
         return StudyResult(self.config, runs, baseline, self.evaluated, self.cached, time.perf_counter() - t0,
                            self.timed_out)
 
