@@ -51,19 +51,6 @@ class Calibration:
     def is_raw(self) -> bool:
         return self.k_left is not None
 
-    def depth_from_disparity(self, d: np.ndarray | float) -> np.ndarray | float:
-        """Z in metres along the optical axis from disparity in px (inf/NaN where d <= 0)."""
-        d = np.asarray(d, dtype=np.float64)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            z = np.where(d > 0, self.focal_px * self.baseline_m / d, np.nan)
-        return z if z.ndim else float(z)
-
-    def disparity_from_depth(self, z: np.ndarray | float) -> np.ndarray | float:
-        z = np.asarray(z, dtype=np.float64)
-        with np.errstate(divide="ignore"):
-            d = self.focal_px * self.baseline_m / z
-        return d if d.ndim else float(d)
-
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"focal_px": float(self.focal_px), "baseline_m": float(self.baseline_m),
                                "width": int(self.width), "height": int(self.height)}

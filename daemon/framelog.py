@@ -29,8 +29,32 @@ import numpy as np
 from uav_depth.core.calibration import Calibration
 from uav_depth.daemon.config import LoggingConfig
 from uav_depth.core.session import Session, SessionWriter
+from uav_depth.daemon.ranging import Estimate
+from uav_depth.daemon.sources.base import Frame
 
 log = logging.getLogger("uav_depth.framelog")
+
+
+def frame_meta(frame: Frame, est: Estimate, t0: float, source_kind: str,
+               roi: tuple[int, int, int, int] | None) -> dict[str, Any]:
+    """The ``meta`` a logged frame carries: when, what was measured, with which parameters, how long it took.
+
+    ``t0``: the service's start (monotonic s), so ``time_s`` counts from it. The
+    source's own ``frame.meta`` keys are added where they do not clash.
+    """
+    m = est.measurement
+    meta: dict[str, Any] = {
+        "time_s": round(frame.t_capture - t0, 6),
+        "wall_time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "index": frame.index, "source": source_kind, "params_hash": est.params_hash,
+        "roi": list(roi or ()), "measured_distance_m": m.distance_m, "sigma_m": m.sigma_m,
+        "quality": m.quality, "bbox": list(m.bbox) if m.bbox else None, "reason": m.reason,
+        "timings_ms": {k: round(v, 2) for k, v in est.timings_ms.items()},
+    }
+    if frame.truth_m is not None:
+        meta["branch_distance_m"] = frame.truth_m
+    meta.update({k: v for k, v in frame.meta.items() if k not in meta})
+    return meta
 
 
 def tree_size(path: Path) -> int:

@@ -2,11 +2,12 @@
 
 Threads and who waits on whom (nobody waits on the stereo stage):
 
-- ``capture``: reads the source into a one-slot mailbox (the newest frame wins;
-  older ones are dropped, never queued). Camera loss: close, reopen with
-  back-off, STATUSTEXT "camera lost" / "camera back".
+- ``capture`` (:mod:`uav_depth.daemon.capture`): reads the source into a one-slot
+  mailbox (the newest frame wins; older ones are dropped, never queued). Camera
+  loss: close, reopen with back-off, STATUSTEXT "camera lost" / "camera back".
 - ``stereo``: takes the newest frame, rectifies, runs the disparity pipeline and
-  ranging, and publishes an :class:`~uav_depth.daemon.ranging.Estimate` by one
+  ranging of the current :class:`~uav_depth.daemon.stage.Stage`, and publishes an
+  :class:`~uav_depth.daemon.ranging.Estimate` by one
   assignment. It reads the current stage (pipeline + ranger) by one attribute
   read per frame, so a parameter swap never interrupts a frame.
 - ``mavlink-clock`` (:class:`~uav_depth.daemon.mavlink_out.SendClock`): DISTANCE_SENSOR
@@ -14,8 +15,12 @@ Threads and who waits on whom (nobody waits on the stereo stage):
 - ``mavlink-io``: the link's reader and reconnector; ``params-watch``: hot
   reload; ``frame-logger``: the background writer.
 - the caller's thread runs :meth:`Service.run`: start-up, then health checks,
-  sd_notify WATCHDOG/STATUS and the status log line until the stop event is set,
-  then a bounded shutdown that says what it abandoned.
+  sd_notify WATCHDOG/STATUS and the status log line (:mod:`uav_depth.daemon.health`)
+  until the stop event is set, then a bounded shutdown that says what it abandoned.
+
+This module is the lifecycle; the stage and its reload live in
+:mod:`uav_depth.daemon.stage`, what the service reports in :mod:`~uav_depth.daemon.health`,
+the frame log's metadata in :mod:`~uav_depth.daemon.framelog`.
 
 Signal handlers (in the CLI) only set events: ``stop``, :meth:`Service.request_log_frame`,
 :meth:`Service.request_reload`.
@@ -23,45 +28,31 @@ Signal handlers (in the CLI) only set events: ``stop``, :meth:`Service.request_l
 
 from __future__ import annotations
 
-import collections
-import contextlib
-import functools
 import logging
-import math
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
 from uav_depth.core.calibration import Calibration
+from uav_depth.core.errors import CalibrationError, ConfigError, FrameError, SourceError, UavDepthError
+from uav_depth.core.rectify import Rectifier
+from uav_depth.daemon.capture import Capture, Mailbox
 from uav_depth.daemon.config import RunConfig
-from uav_depth.core.disparity import DisparityPipeline
-from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError, FrameError, SourceError, UavDepthError
-from uav_depth.daemon.framelog import FrameLogger
+from uav_depth.daemon.framelog import FrameLogger, frame_meta
+from uav_depth.daemon.health import Health, Stats, status_line
+from uav_depth.daemon.liveview import LiveView
+from uav_depth.daemon.obstacles import Field, ObstacleSender, encoder, limits_cm
+from uav_depth.daemon.rigwatch import RigWatch
 from uav_depth.daemon.mavlink_out import MavlinkLink, SendClock
 from uav_depth.daemon.notify import Notifier
-from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, load_params
-from uav_depth.daemon.ranging import Estimate, OutlierGate, Ranger, RangeLimits, resolve_roi
-from uav_depth.core.rectify import Rectifier
-from uav_depth.daemon.reload import FileWatcher, file_signature
-from uav_depth.daemon.sources import EndOfStream, Frame, FrameSource, create_source
+from uav_depth.daemon.ranging import Estimate, OutlierGate, RangeLimits, resolve_roi
+from uav_depth.daemon.reload import FileWatcher
+from uav_depth.daemon.sources import Frame, FrameSource, create_source
+from uav_depth.daemon.stage import Stage, StageHolder
 
 log = logging.getLogger("uav_depth.service")
-
-
-@dataclass(frozen=True)
-class Stage:
-    """What one parameter set builds: the pipeline and the ranger. Swapped as a whole."""
-
-    params: StereoParams
-    pipeline: DisparityPipeline
-    ranger: Ranger
-    origin: str
-
-    @functools.cached_property
-    def hash(self) -> str:   # computed once: every frame's estimate carries it
-        return self.params.hash()
 
 
 @dataclass(frozen=True)
@@ -72,76 +63,6 @@ class ShutdownReport:
     @property
     def clean(self) -> bool:
         return not self.abandoned
-
-
-class _Mailbox:
-    """One slot: ``put`` replaces what is there (counting the drop), ``get`` waits for something new."""
-
-    def __init__(self) -> None:
-        self._cond = threading.Condition()
-        self._item: Frame | None = None
-        self.dropped = 0
-
-    def put(self, item: Frame) -> None:
-        with self._cond:
-            if self._item is not None:
-                self.dropped += 1
-            self._item = item
-            self._cond.notify()
-
-    def get(self, timeout_s: float) -> Frame | None:
-        with self._cond:
-            if self._item is None:
-                self._cond.wait(timeout_s)
-            item, self._item = self._item, None
-            return item
-
-
-@dataclass
-class _Stats:
-    """Rolling per-stage timings (ms) and counters for the status line and the benchmark."""
-
-    window: int = 200
-    stages: dict[str, collections.deque] = field(default_factory=dict)
-    frames: int = 0
-    frame_times: collections.deque = field(default_factory=lambda: collections.deque(maxlen=200))
-
-    def add(self, t_done: float, timings: dict[str, float]) -> None:
-        self.frames += 1
-        self.frame_times.append(t_done)
-        for k, v in timings.items():
-            self.stages.setdefault(k, collections.deque(maxlen=self.window)).append(v)
-
-    def fps(self, now: float, span_s: float = 5.0) -> float:
-        recent = [t for t in self.frame_times if now - t <= span_s]
-        if len(recent) < 2:
-            return 0.0
-        return (len(recent) - 1) / max(recent[-1] - recent[0], 1e-6)
-
-    def median(self, stage: str) -> float:
-        vals = sorted(self.stages.get(stage, ()))
-        return vals[len(vals) // 2] if vals else math.nan
-
-
-def compute_roi_px(params: StereoParams, width: int, height: int) -> tuple[int, int, int, int] | None:
-    """The matching region ``compute.roi`` in px (None when it is the whole image).
-
-    Outside it the pipeline leaves disparity NaN; ranging outside it finds nothing.
-    """
-    return None if params.compute.whole_frame else params.compute.roi_pixels(width, height)
-
-
-def check_roi_against_compute(roi: tuple[int, int, int, int], params: StereoParams, width: int,
-                              height: int) -> str | None:
-    """A warning when the ranging ROI reaches outside the parameters' matching ROI, else None."""
-    c = compute_roi_px(params, width, height)
-    if c is None:
-        return None
-    x0, y0, x1, y1 = roi
-    if x0 >= c[0] and y0 >= c[1] and x1 <= c[2] and y1 <= c[3]:
-        return None
-    return (f"ranging.roi {list(roi)} reaches outside the parameters' matching region compute.roi "
-            f"(= {list(c)} px at {width}x{height}); disparity there is NaN, so ranging sees only the overlap")
 
 
 class Service:
@@ -170,32 +91,33 @@ class Service:
         self.link = link if link is not None else MavlinkLink(config.mavlink, svc.reconnect_min_s,
                                                               svc.reconnect_max_s)
         self.notifier = notifier if notifier is not None else Notifier()
-        self.stats = _Stats()
+        self.health = Health(svc, self.notifier, self.status_line)
+        self.stages = StageHolder(config.params_file, config.ranging, self.link.statustext)
         self.estimate: Estimate | None = None       # what the send clock reads; replaced by one assignment
         self.last_estimate: Estimate | None = None   # newest frame's result, accepted or not
-        self.stage: Stage | None = None
         self.calibration: Calibration | None = None
         self.rectifier: Rectifier | None = None
         self.roi: tuple[int, int, int, int] | None = None
         self.clock: SendClock | None = None
         self.framelog: FrameLogger | None = None
+        self.liveview: LiveView | None = None       # liveview.enabled: the read-only web page
+        self.rigwatch: RigWatch | None = None       # rig_check.interval_s > 0: the periodic rig check
+        self.obstacles: ObstacleSender | None = None  # obstacle_distance.enabled: OBSTACLE_DISTANCE
         self.state = "boot"
         self.camera_ok = False
         self.ended: str | None = None
         self.t0 = time.monotonic()
-        self._mailbox = _Mailbox()
+        self._mailbox = Mailbox()
+        self.capture = Capture(self.source, svc, self._mailbox, self._stopping, on_lost=self._camera_lost,
+                               on_back=self._camera_back, on_end=self._source_ended,
+                               in_source=self.health.in_source)
         self._gate = OutlierGate(config.ranging.max_jump_rel, config.ranging.confirm_frames,
                                  forget_s=max(1.0, 2 * config.ranging.max_age_ms / 1000.0))
         self._threads: dict[str, threading.Thread] = {}
         self._first_frame = threading.Event()
         self._startup_error: UavDepthError | None = None
-        self._busy_since: float | None = None      # when the stereo stage took its current frame
-        self._source_since: float | None = None    # when the capture thread entered the source (read/open)
-        self._reload_lock = threading.Lock()
         self._reload_now = threading.Event()
         self._watcher: FileWatcher | None = None
-        self._params_signature: tuple[int, int, int] | None = None
-        self._frames_in = 0
 
     # -- control from signal handlers (they only set events) -------------------------------------
     def request_log_frame(self) -> None:
@@ -207,54 +129,19 @@ class Service:
         """Re-read the parameter file now (SIGHUP)."""
         self._reload_now.set()
 
-    # -- stages ----------------------------------------------------------------------------------
-    def _load_params(self) -> tuple[StereoParams, str]:
-        path = self.config.params_file
-        if path is None:
-            return DEFAULT_PARAMS, "built-in manual defaults"
-        self._params_signature = file_signature(Path(path))   # what the watcher compares against
-        if not Path(path).exists():
-            log.warning("parameter file %s does not exist: using the built-in manual defaults until it appears",
-                        path)
-            return DEFAULT_PARAMS, "built-in manual defaults"
-        return load_params(path), str(path)
+    # -- what the other parts read -------------------------------------------------------------
+    @property
+    def stage(self) -> Stage | None:
+        """The current stereo stage (pipeline + ranger); replaced as a whole on reload."""
+        return self.stages.stage
 
-    def _build_stage(self, params: StereoParams, origin: str) -> Stage:
-        assert self.calibration is not None and self.roi is not None
-        ranger = Ranger(self.config.ranging, self.calibration, self.roi, params)
-        warning = check_roi_against_compute(self.roi, params, self.calibration.width, self.calibration.height)
-        if warning:
-            log.warning("%s", warning)
-        return Stage(params, DisparityPipeline(params), ranger, origin)
+    @property
+    def stats(self) -> Stats:
+        return self.health.stats
 
     def reload_params(self, path: Path | None = None) -> bool:
-        """Re-read the parameter file; swap the stage if it is valid and new. Never raises.
-
-        Invalid file: the last good parameters stay, one log line names the problem,
-        a STATUSTEXT says so. Returns True when a new stage was swapped in.
-        """
-        path = Path(path or self.config.params_file) if (path or self.config.params_file) else None
-        if path is None or self.stage is None:
-            return False
-        with self._reload_lock:
-            current = self.stage
-            if not path.exists():
-                log.warning("parameter file %s removed; keeping parameters %s", path, current.hash)
-                return False
-            try:
-                params = load_params(path)
-                if params == current.params:
-                    log.info("parameter file %s rewritten with the same parameters (hash %s)", path, current.hash)
-                    return False
-                stage = self._build_stage(params, str(path))
-            except (ConfigError, FileFormatError, CalibrationError) as exc:
-                log.error("parameters rejected, keeping %s: %s", current.hash, exc)
-                self.link.statustext(f"uav-depth: params rejected, kept {current.hash[:8]}", "warning")
-                return False
-            self.stage = stage      # the swap: the stereo thread picks it up at its next frame
-            log.info("parameters reloaded from %s: hash %s (was %s)", path, stage.hash, current.hash)
-            self.link.statustext(f"uav-depth: params {stage.hash[:8]} loaded", "info")
-            return True
+        """Re-read the parameter file (see :meth:`StageHolder.reload`). Never raises."""
+        return self.stages.reload(path)
 
     # -- start-up --------------------------------------------------------------------------------
     def startup(self, stop: threading.Event) -> None:
@@ -282,13 +169,11 @@ class Service:
             if time.monotonic() > deadline:
                 self.shutdown()
                 raise SourceError(f"no frame processed within service.first_frame_timeout_s = "
-                                  f"{cfg.service.first_frame_timeout_s:g} s ({self._frames_in} frames captured "
+                                  f"{cfg.service.first_frame_timeout_s:g} s ({self.capture.frames_in} frames captured "
                                   f"from {self.source.describe()})")
             self._first_frame.wait(0.05)
         self.state = "active"
-        status = self.status_line()
-        log.info("ready: %s", status)
-        self.notifier.ready(status)
+        self.health.ready()
 
     def _open_stages(self) -> None:
         cfg = self.config
@@ -307,14 +192,13 @@ class Service:
         self.roi = resolve_roi(cfg.ranging.roi, self.calibration.width, self.calibration.height)
         if hasattr(self.source, "truth_roi"):
             self.source.truth_roi = self.roi    # the synthetic truth is taken where we range
-        params, origin = self._load_params()
-        self.stage = self._build_stage(params, origin)
+        stage = self.stages.open(self.calibration, self.roi)
         c = self.calibration
-        lim = self.stage.ranger.limits
+        lim = stage.ranger.limits
         log.info("calibration: f %.1f px, B %.4f m, %dx%d%s; ROI %s; range %.2f..%.2f m", c.focal_px, c.baseline_m,
                  c.width, c.height, "" if self.rectifier.passthrough else " (rectified from raw)", list(self.roi),
                  lim.min_distance_m, lim.max_distance_m)
-        log.info("parameters: %s, hash %s", origin, self.stage.hash)
+        log.info("parameters: %s, hash %s", stage.origin, stage.hash)
         if cfg.logging.dir is not None:
             self.framelog = FrameLogger(cfg.logging, self.calibration, cfg.source_kind,
                                         on_stop=lambda why: self.link.statustext("uav-depth: logging stopped",
@@ -326,15 +210,39 @@ class Service:
         self.clock = SendClock(self.link, cfg.mavlink, cfg.ranging.max_age_ms / 1000.0,
                                estimate=lambda: self.estimate, limits=self._limits,
                                state=lambda: self.state).start()
-        for name, target in (("capture", self._capture_loop), ("stereo", self._stereo_loop)):
+        if cfg.liveview.enabled:
+            c = self.calibration
+            self.liveview = LiveView.bind(cfg.liveview, c.focal_px * c.baseline_m, self._view_status)
+        if cfg.rig_check.interval_s > 0:
+            self.rigwatch = RigWatch(cfg.rig_check, lambda text: self.link.statustext(text, "warning"))
+            self.rigwatch.start(self._stopping)
+        if cfg.obstacle_distance.enabled:
+            self.obstacles = self._obstacle_sender().start(self._stopping)
+        for name, target in (("capture", self.capture.run), ("stereo", self._stereo_loop)):
             t = threading.Thread(target=target, name=name, daemon=True)
             self._threads[name] = t
             t.start()
         if cfg.params_file is not None:
             self._watcher = FileWatcher(cfg.params_file, self.reload_params, cfg.service.params_poll_s,
-                                        since=self._params_signature)
+                                        since=self.stages.signature)
             self._watcher.start(self._stopping)
             log.info("watching %s for new parameters (%s)", cfg.params_file, "inotify + poll")
+
+    def _obstacle_sender(self) -> ObstacleSender:
+        c, clock, stype = self.calibration, self.clock, self.clock.sensor_type
+        lim = lambda: limits_cm(self._limits().min_distance_m, self._limits().max_distance_m)  # noqa: E731
+        return ObstacleSender(self.config.obstacle_distance, Field(c.width, c.focal_px, c.principal_point[0]),
+                              c.focal_px * c.baseline_m, self.config.ranging.max_age_ms / 1000.0,
+                              lambda: self.stage.params, lim,
+                              lambda r: self.link.send_measurement("OBSTACLE_DISTANCE", encoder(r, stype),
+                                                                   r.time_usec / 1e6 + clock.t_start,
+                                                                   self.config.ranging.max_age_ms / 1000.0),
+                              clock.t_start)
+
+    def _view_status(self) -> dict[str, Any]:
+        clock = self.clock
+        return {"state": self.state, "fps": self.stats.fps(time.monotonic()), "camera_ok": self.camera_ok,
+                "wire": clock.last_report if clock else None}
 
     def _limits(self) -> RangeLimits:
         stage = self.stage
@@ -357,60 +265,9 @@ class Service:
             log.info("camera back: %s", self.source.describe())
             self.link.statustext("uav-depth: camera back", "notice")
 
-    def _reconnect(self) -> None:
-        svc = self.config.service
-        delay = svc.reconnect_min_s
-        try:
-            self.source.close()
-        except Exception:   # a vanished device may fail to close; we reopen anyway
-            log.debug("source close failed", exc_info=True)
-        while not self._stopping.is_set():
-            if self._stopping.wait(delay):
-                return
-            try:
-                with self._in_source():
-                    self.source.open()
-                return
-            except SourceError as exc:
-                log.info("camera still missing (%s); next try in %.1f s", exc, min(delay * 2, svc.reconnect_max_s))
-            except Exception as exc:   # a driver error while reopening is the same story
-                log.info("camera reopen failed (%s: %s)", type(exc).__name__, exc)
-            delay = min(delay * 2, svc.reconnect_max_s)
-
-    def _capture_loop(self) -> None:
-        svc = self.config.service
-        last = time.monotonic()
-        while not self._stopping.is_set():
-            try:
-                with self._in_source():
-                    frame = self.source.read(min(0.2, svc.frame_timeout_s))
-            except EndOfStream as exc:
-                log.info("%s", exc)
-                self.ended = str(exc)
-                self.state = "standby"
-                return
-            except SourceError as exc:
-                self._camera_lost(str(exc))
-                self._reconnect()
-                last = time.monotonic()
-                continue
-            except Exception as exc:   # an unexpected driver error is a lost camera too
-                log.exception("source read failed")
-                self._camera_lost(f"{type(exc).__name__}: {exc}")
-                self._reconnect()
-                last = time.monotonic()
-                continue
-            now = time.monotonic()
-            if frame is None:
-                if now - last > svc.frame_timeout_s:
-                    self._camera_lost(f"no frame for {now - last:.1f} s")
-                    self._reconnect()
-                    last = time.monotonic()
-                continue
-            last = now
-            self._frames_in += 1
-            self._camera_back()
-            self._mailbox.put(frame)
+    def _source_ended(self, why: str) -> None:
+        self.ended = why
+        self.state = "standby"
 
     def _stereo_loop(self) -> None:
         while not self._stopping.is_set():
@@ -427,115 +284,67 @@ class Service:
             except Exception:   # keep flying: one bad frame must not end the stereo loop
                 log.exception("frame %d failed", frame.index)
             finally:
-                self._busy_since = None
+                self.health.busy_since = None
 
     def _process(self, frame: Frame) -> None:
         stage = self.stage               # one read: a swap lands between frames, never inside one
         assert stage is not None and self.rectifier is not None
         t_start = time.monotonic()
-        self._busy_since = t_start
+        self.health.busy_since = t_start
         left, right = self.rectifier(frame.left, frame.right)
         t_rect = time.monotonic()
         result = stage.pipeline.run(left, right)
         t_disp = time.monotonic()
-        m = stage.ranger.measure(result)
+        m = self._gate.near(stage.ranger.measure(result), stage.ranger.limits.min_distance_m, frame.t_capture)
         t_done = time.monotonic()
         timings = {"queue": (t_start - frame.t_capture) * 1e3, "rectify": (t_rect - t_start) * 1e3,
                    "disparity": (t_disp - t_rect) * 1e3, "ranging": (t_done - t_disp) * 1e3,
                    "latency": (t_done - frame.t_capture) * 1e3}
         est = Estimate(m, stage.ranger.limits, frame.t_capture, t_done, frame.index, stage.hash, frame.truth_m,
-                       timings)
+                       timings, too_close=m.too_close)
         self.last_estimate = est
         if not m.valid:
-            self.estimate = est        # the newest frame measured nothing: say so at the next tick
+            self.estimate = est        # nothing measured (the wire goes blind), or too close: never held back
         elif self._gate.accept(m.distance_m, frame.t_capture):
             self.estimate = est
         # else: a single-frame jump, held back; the previous estimate ages out on its own
+        clock = self.clock
+        if clock is not None:
+            clock.notify()             # sent now, not at the next tick
         self.stats.add(t_done, timings)
+        if self.liveview is not None:   # references only: nothing is drawn unless someone watches
+            self.liveview.offer(left, result.disparity, est, self.roi, stage.params)
+        if self.rigwatch is not None:
+            self.rigwatch.offer(left, right)
+        if self.obstacles is not None:
+            self.obstacles.offer(left, right, frame.t_capture)
         if self.framelog is not None:
-            self.framelog.consider(frame.index, left, right, self._frame_meta(frame, est), frame.reference,
+            self.framelog.consider(frame.index, left, right,
+                                   frame_meta(frame, est, self.t0, self.config.source_kind, self.roi), frame.reference,
                                    frame.reference_source)
         self._first_frame.set()
 
-    def _frame_meta(self, frame: Frame, est: Estimate) -> dict[str, Any]:
-        m = est.measurement
-        meta: dict[str, Any] = {
-            "time_s": round(frame.t_capture - self.t0, 6),
-            "wall_time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-            "index": frame.index, "source": self.config.source_kind, "params_hash": est.params_hash,
-            "roi": list(self.roi or ()), "measured_distance_m": m.distance_m, "sigma_m": m.sigma_m,
-            "quality": m.quality, "bbox": list(m.bbox) if m.bbox else None, "reason": m.reason,
-            "timings_ms": {k: round(v, 2) for k, v in est.timings_ms.items()},
-        }
-        if frame.truth_m is not None:
-            meta["branch_distance_m"] = frame.truth_m
-        meta.update({k: v for k, v in frame.meta.items() if k not in meta})
-        return meta
-
-    @contextlib.contextmanager
-    def _in_source(self):
-        """Mark the capture thread as inside the source (a read or open) for the stall check."""
-        self._source_since = time.monotonic()
-        try:
-            yield
-        finally:
-            self._source_since = None
-
     # -- main loop -------------------------------------------------------------------------------
     def healthy(self, now: float | None = None) -> bool:
-        """True while every loop is alive and neither the stereo stage nor the source is stuck.
-
-        Stuck: one frame in the stereo stage, or one read/open of the source, for longer
-        than ``service.stall_timeout_s``. Then WATCHDOG=1 stops and systemd restarts us.
-        """
-        now = time.monotonic() if now is None else now
-        limit = self.config.service.stall_timeout_s
-        busy, reading = self._busy_since, self._source_since
-        return (self.clock is not None and self.clock.alive
-                and all(t.is_alive() for t in self._threads.values())
-                and (busy is None or now - busy < limit)
-                and (reading is None or now - reading < limit))
+        """True while every loop is alive and nothing is stuck (see :meth:`Health.healthy`)."""
+        return self.health.healthy(self.clock, self._threads, now)
 
     def status_line(self) -> str:
-        now = time.monotonic()
-        est = self.last_estimate
-        if est is None:
-            dist = "no frame yet"
-        elif est.measurement.valid:
-            truth = f", truth {est.truth_m:.3f} m" if est.truth_m is not None else ""
-            dist = f"distance {est.measurement.distance_m:.3f} m (q {est.measurement.quality}{truth})"
-        else:
-            dist = f"no measurement ({est.measurement.reason})"
-        clock = self.clock
-        sent = f"{clock.valid_sent}/{clock.ticks} valid" if clock else "0/0"
         stage = self.stage
-        return (f"{self.stats.fps(now):.1f} fps, {dist}, disparity {self.stats.median('disparity'):.0f} ms, "
-                f"latency {self.stats.median('latency'):.0f} ms, sent {sent}, "
-                f"params {stage.hash if stage else '-'}{'' if self.camera_ok else ', CAMERA LOST'}")
+        return status_line(self.stats, self.last_estimate, self.clock, stage.hash if stage else None,
+                           self.camera_ok)
 
     def run(self, stop: threading.Event) -> ShutdownReport:
         """Start, serve until ``stop`` is set (or a finite source ends), shut down. Raises on start-up failure."""
         self.startup(stop)
         try:
-            svc = self.config.service
-            next_status = time.monotonic() + svc.status_interval_s
-            next_dog = 0.0
             while not stop.wait(0.1):
-                now = time.monotonic()
                 if self.ended:
                     break
                 if self._reload_now.is_set():
                     self._reload_now.clear()
                     self.reload_params()
-                wd = self.notifier.watchdog_s
-                if wd and now >= next_dog and self.healthy(now):
-                    self.notifier.watchdog()
-                    next_dog = now + wd / 3.0
-                if now >= next_status:
-                    line = self.status_line()
-                    log.info("status: %s", line)
-                    self.notifier.status(line)
-                    next_status = now + svc.status_interval_s
+                self.health.tick(self.healthy)
         finally:
             report = self.shutdown()
         return report
@@ -558,15 +367,15 @@ class Service:
         for name, t in self._threads.items():
             t.join(left())
             if t.is_alive():
-                busy, reading = self._busy_since, self._source_since
-                what = ""
-                if name == "stereo" and busy:
-                    what = f" (busy for {time.monotonic() - busy:.1f} s on a frame)"
-                elif name == "capture" and reading:
-                    what = f" (stuck for {time.monotonic() - reading:.1f} s in the source)"
-                abandoned.append(f"the {name} thread{what}")
+                abandoned.append(f"the {name} thread{self.health.abandoned_detail(name)}")
         if self._watcher is not None and not self._watcher.join(left()):
             abandoned.append("the parameter watcher")
+        if self.obstacles is not None and not self.obstacles.join(left()):
+            abandoned.append("the obstacle pass")
+        if self.rigwatch is not None and not self.rigwatch.join(left()):
+            abandoned.append("the rig check")
+        if self.liveview is not None and not self.liveview.close(left()):
+            abandoned.append("the live view server")
         if self.framelog is not None:
             lost = self.framelog.close(left())
             if lost:

@@ -13,208 +13,43 @@ is how SITL flies the virtual camera toward the tree.
 
 Both views are ray-cast analytically, so the left disparity d = f*B/Z is exact
 and the distance to the nearest branch surface is known to pixel sampling.
+
+Optional, all off by default (the default scene is pixel for pixel what it was):
+foliage in front of the target (twigs, needle fascicles, small branches:
+:mod:`uav_depth.sim.foliage`), bright sky seen through gaps in the canopy, hard
+shadows from the sun (:class:`uav_depth.sim.geometry.ShadowMap`), and the camera
+differences of real rigs (:mod:`uav_depth.sim.camera`, and ``rect_error_px``).
+:meth:`SceneConfig.leafy` is the preset with all of them; ``vary(..., leafy=True)``
+draws them at random. :meth:`StereoFrame.truth` gives the nearest *significant*
+object (:mod:`uav_depth.sim.truth`). docs/scenes.md says what and why.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field, fields, replace
-from typing import Any, Mapping
+from dataclasses import replace
 
 import cv2
 import numpy as np
 
-from uav_depth.core.calibration import Calibration
-from uav_depth.core.errors import ConfigError
+from uav_depth.sim.camera import finish
+from uav_depth.sim.foliage import foliage
+from uav_depth.sim.geometry import BACKGROUND, BRANCH, NEEDLE, SKY, TRUNK, TWIG, Cylinder, ShadowMap
+from uav_depth.sim.texture import (BARK_COS as _BARK_COS, BARK_SIN as _BARK_SIN, BG_COS as _BG_COS,
+                                   BG_SIN as _BG_SIN, TEX_M as _TEX_M,
+                                   TEX_SIZE as _TEX_SIZE, periodic_noise as _periodic_noise, texture as _texture,
+                                   wrap as _wrap)
+from uav_depth.sim.frame import Pose, StereoFrame, nearest_distance
+from uav_depth.sim.needles import cast_needles
+from uav_depth.sim.scene_config import SceneConfig, background_period_px, vary
+from uav_depth.sim.truth import Truth
 
-TRUNK, BRANCH, BACKGROUND = 1, 2, 0
+__all__ = ["BACKGROUND", "BRANCH", "NEEDLE", "SKY", "TRUNK", "TWIG", "Cylinder", "Pose", "Scene", "SceneConfig",
+           "StereoFrame", "Truth", "background_period_px", "nearest_distance", "render_pair", "time_render",
+           "vary", "write_session"]
 
-
-@dataclass(frozen=True)
-class SceneConfig:
-    """Everything that defines a synthetic scene; same config and seed, same pixels.
-
-    Distances in metres, angles in degrees, intensities on the 0..255 scale.
-    ``branch_distance_m`` is the distance along the optical axis from the left
-    camera (identity pose) to the nearest surface of the target branch, which
-    crosses the image centre.
-    """
-
-    width: int = 1280
-    height: int = 720
-    focal_px: float = 700.0
-    baseline_m: float = 0.063
-    branch_distance_m: float = 1.0
-    branch_radius_m: float = 0.03
-    branch_angle_deg: float | None = None   # target branch tilt; random in +-30 when None
-    n_branches: int = 4                     # further branches besides the target one
-    trunk_offset_m: float = 0.35            # trunk stands this far behind the target branch
-    background_distance_m: float = 8.0
-    brightness: float = 0.0                 # added to every pixel
-    contrast: float = 1.0                   # multiplies texture contrast around mid-grey
-    noise_std: float = 2.0                  # per-view Gaussian sensor noise
-    blur_sigma: float = 0.0                 # Gaussian optical blur, px
-    texture_scale: float = 1.0              # >1: finer texture
-    color: bool = False                     # BGR output instead of grey
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        rules = [
-            ("width", self.width >= 32, "must be at least 32"),
-            ("height", self.height >= 32, "must be at least 32"),
-            ("focal_px", self.focal_px > 0, "must be greater than 0"),
-            ("baseline_m", self.baseline_m > 0, "must be greater than 0"),
-            ("branch_distance_m", 0.05 <= self.branch_distance_m < self.background_distance_m - 0.5,
-             "must be at least 0.05 and 0.5 less than background_distance_m"),
-            ("branch_radius_m", 0.002 <= self.branch_radius_m <= 0.5, "must be between 0.002 and 0.5"),
-            ("n_branches", 0 <= self.n_branches <= 32, "must be between 0 and 32"),
-            ("trunk_offset_m", self.trunk_offset_m > 0, "must be greater than 0"),
-            ("contrast", self.contrast >= 0, "must be at least 0"),
-            ("noise_std", self.noise_std >= 0, "must be at least 0"),
-            ("blur_sigma", self.blur_sigma >= 0, "must be at least 0"),
-            ("texture_scale", self.texture_scale > 0, "must be greater than 0"),
-        ]
-        for key, ok, rule in rules:
-            if not ok:
-                raise ConfigError(f"scene.{key}", rule, getattr(self, key))
-
-    @property
-    def calibration(self) -> Calibration:
-        return Calibration(focal_px=self.focal_px, baseline_m=self.baseline_m, width=self.width,
-                           height=self.height, cx=(self.width - 1) / 2.0, cy=(self.height - 1) / 2.0)
-
-    @property
-    def center_roi(self) -> tuple[int, int, int, int]:
-        """Default region of interest (x0, y0, x1, y1): the central third of the image."""
-        return (self.width // 3, self.height // 3, 2 * self.width // 3, 2 * self.height // 3)
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, prefix: str = "scene") -> "SceneConfig":
-        data = dict(data or {})
-        names = {f.name: f for f in fields(cls)}
-        kw: dict[str, Any] = {}
-        for key, value in data.items():
-            if key not in names:
-                raise ConfigError(f"{prefix}.{key}", f"is not a known scene key (known: {', '.join(names)})", value)
-            default = names[key].default
-            if isinstance(default, bool):
-                if not isinstance(value, bool):
-                    raise ConfigError(f"{prefix}.{key}", "must be true or false", value)
-            elif isinstance(default, (int, float)) or default is None:
-                if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
-                    raise ConfigError(f"{prefix}.{key}", "must be a number", value)
-                if isinstance(default, int) and not isinstance(default, bool) and value is not None:
-                    if float(value) != int(value):
-                        raise ConfigError(f"{prefix}.{key}", "must be an integer", value)
-                    value = int(value)
-            kw[key] = value
-        return cls(**kw)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
-
-
-@dataclass(frozen=True)
-class Cylinder:
-    p0: np.ndarray      # (3,) start of the axis, world m
-    axis: np.ndarray    # (3,) unit direction
-    length: float
-    radius: float
-    kind: int           # TRUNK or BRANCH
-    texture: int        # index into the scene's textures
-    albedo: float
-
-
-@dataclass(frozen=True)
-class Pose:
-    """Rig pose in the world: ``rotation`` (3, 3) camera axes as columns, ``position`` (3,) m."""
-
-    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
-    position: np.ndarray = field(default_factory=lambda: np.zeros(3))
-
-    @staticmethod
-    def forward(distance_m: float) -> "Pose":
-        """The identity pose moved ``distance_m`` along the optical axis (toward the tree)."""
-        return Pose(np.eye(3), np.array([0.0, 0.0, float(distance_m)]))
-
-
-@dataclass(frozen=True)
-class StereoFrame:
-    """One rendered pair. Images uint8 (H, W) grey or (H, W, 3) BGR.
-
-    ``disparity``: (H, W) float32 px of the left view (exact); ``depth``: (H, W)
-    float32 m along the optical axis; ``labels``: (H, W) uint8 (0 background,
-    1 trunk, 2 branch).
-    """
-
-    left: np.ndarray
-    right: np.ndarray
-    disparity: np.ndarray
-    depth: np.ndarray
-    labels: np.ndarray
-
-    @property
-    def branch_mask(self) -> np.ndarray:
-        return self.labels == BRANCH
-
-    def nearest_branch_distance(self, roi: tuple[int, int, int, int] | None = None) -> float:
-        """Distance along the optical axis to the nearest branch surface in ``roi`` (NaN if none)."""
-        return nearest_distance(self.depth, self.branch_mask, roi)
-
-
-def nearest_distance(depth: np.ndarray, mask: np.ndarray, roi: tuple[int, int, int, int] | None) -> float:
-    if roi is not None:
-        x0, y0, x1, y1 = roi
-        depth, mask = depth[y0:y1, x0:x1], mask[y0:y1, x0:x1]
-    vals = depth[mask]
-    return float(vals.min()) if vals.size else float("nan")
-
-
-def _periodic_noise(rng: np.random.Generator, size: int, sigma_u: float, sigma_v: float) -> np.ndarray:
-    """Tileable smooth noise (size, size) in 0..1, anisotropic Gaussian spectrum."""
-    white = rng.standard_normal((size, size))
-    fy = np.fft.fftfreq(size)[:, None]
-    fx = np.fft.fftfreq(size)[None, :]
-    spec = np.exp(-2 * (math.pi ** 2) * ((fx * sigma_u) ** 2 + (fy * sigma_v) ** 2))
-    field = np.real(np.fft.ifft2(np.fft.fft2(white) * spec))
-    field -= field.min()
-    field /= max(field.max(), 1e-9)
-    return field
-
-
-def _texture(rng: np.random.Generator, size: int, bark: bool) -> np.ndarray:
-    """Multi-scale texture in 0..1: bark is stretched along the axis (v), foliage is isotropic."""
-    if bark:
-        parts = [(0.5, _periodic_noise(rng, size, 1.5, 10.0)), (0.3, _periodic_noise(rng, size, 5.0, 30.0)),
-                 (0.2, _periodic_noise(rng, size, 0.8, 2.0))]
-    else:
-        parts = [(0.45, _periodic_noise(rng, size, 2.0, 2.0)), (0.35, _periodic_noise(rng, size, 8.0, 8.0)),
-                 (0.2, _periodic_noise(rng, size, 1.0, 1.0))]
-    tex = sum(w * p for w, p in parts)
-    tex = (tex - tex.min()) / max(tex.max() - tex.min(), 1e-9)
-    return tex.astype(np.float32)
-
-
-_TEX_SIZE = 512
-_TEX_M = {True: 0.25, False: 3.0}    # metres one bark / foliage texture tile spans at texture_scale 1
-_BG_ANGLE = math.atan((math.sqrt(5.0) - 1.0) / 2.0)
-_BG_COS, _BG_SIN = np.float32(math.cos(_BG_ANGLE)), np.float32(math.sin(_BG_ANGLE))
-#: Along an image row the tilted tile comes back close to itself (within 9% of a tile
-#: across the row) only after sqrt(3**2 + 5**2) tiles: the 3/5 convergent of the tangent.
-_BG_REPEAT_TILES = math.sqrt(34.0)
-_BARK_ANGLE = math.atan((3.0 - math.sqrt(5.0)) / 2.0)     # tangent 1/phi**2, about 20.9 degrees
-_BARK_COS, _BARK_SIN = math.cos(_BARK_ANGLE), math.sin(_BARK_ANGLE)
-_LIGHT = np.array([-0.4, -0.6, 0.7]) / np.linalg.norm([-0.4, -0.6, 0.7])   # toward the light
-
-
-def _wrap(x: np.ndarray) -> np.ndarray:
-    """``np.mod(x, _TEX_SIZE)`` bit for bit, about five times faster.
-
-    Dividing by a power of two and flooring are exact, so ``x - size * k`` is the
-    exact remainder rounded once, which is what numpy's fmod-and-adjust returns.
-    """
-    return x - float(_TEX_SIZE) * np.floor(x * (1.0 / _TEX_SIZE))
+_LIGHT = np.array([-0.4, -0.6, 0.7]) / np.linalg.norm([-0.4, -0.6, 0.7])   # toward the light (shading)
 
 
 class Scene:
@@ -225,9 +60,26 @@ class Scene:
         rng = np.random.default_rng(config.seed)
         self.textures = [_texture(rng, _TEX_SIZE, True), _texture(rng, _TEX_SIZE, True),
                          _texture(rng, _TEX_SIZE, False)]
-        self.cylinders = self._layout(rng)
+        layout = self._layout(rng)
+        self.cylinders = layout + foliage(config)
         self.calibration = config.calibration
-        self._dirs_cache: tuple[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
+        # Object index 0 is the background plane, i + 1 cylinder i.
+        self.thickness_m = np.array([math.inf] + [cyl.thickness_m for cyl in self.cylinders])
+        self._sky_cut: float | None = None
+        if config.sky_fraction > 0:
+            # Canopy gaps: a coarse mask texture of their own stream, cut at the quantile that
+            # leaves sky_fraction of the far plane open.
+            gaps = _periodic_noise(np.random.default_rng([config.seed, 12]), _TEX_SIZE, 6.0, 6.0).astype(np.float32)
+            self.textures.append(gaps)
+            self._sky_cut = float(np.quantile(gaps[::4, ::4], 1.0 - config.sky_fraction))
+        self._shadows: ShadowMap | None = None
+        if config.shadow_strength > 0:
+            # The foliage and the target cast them when there is foliage, else every branch;
+            # the trunk (4 m tall) would only stretch the map.
+            occluders = [(i + 1, cyl) for i, cyl in enumerate(self.cylinders) if cyl.kind != TRUNK
+                         and (not config.has_foliage or i == 1 or i >= len(layout))]
+            self._shadows = ShadowMap(occluders, [o for o in occluders if o[0] > len(layout)] or occluders)
+        self._dirs_cache: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def _layout(self, rng: np.random.Generator) -> list[Cylinder]:
         c = self.config
@@ -264,38 +116,44 @@ class Scene:
 
     # -- rendering ---------------------------------------------------------------------------
 
-    def _rays(self) -> tuple[np.ndarray, np.ndarray]:
+    def _rays(self, row_shift_px: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         c = self.config
         cx, cy = self.calibration.principal_point
         u = (np.arange(c.width, dtype=np.float32) - cx) / np.float32(c.focal_px)
-        v = (np.arange(c.height, dtype=np.float32) - cy) / np.float32(c.focal_px)
+        if row_shift_px == 0.0:
+            v = (np.arange(c.height, dtype=np.float32) - cy) / np.float32(c.focal_px)
+        else:   # row y sees what row y - shift of a perfect rig sees
+            v = ((np.arange(c.height, dtype=np.float64) - row_shift_px - cy) / c.focal_px).astype(np.float32)
         return u, v
 
-    def _directions(self, rot: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _directions(self, rot: np.ndarray, row_shift_px: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """World ray directions rot @ (u, v, 1), each (H, W) float32, read-only.
 
-        Both views share them, and the last rotation's are kept: a rig that flies
-        without turning (SITL's approach, benchmarks) computes them once.
+        Both views share them (unless the right one has a rectification error), and
+        the last rotation's are kept: a rig that flies without turning (SITL's
+        approach, benchmarks) computes them once.
         """
-        key = np.asarray(rot, dtype=np.float64).tobytes()
-        if self._dirs_cache is not None and self._dirs_cache[0] == key:
-            return self._dirs_cache[1]
+        key = np.asarray(rot, dtype=np.float64).tobytes() + np.float64(row_shift_px).tobytes()
+        if key in self._dirs_cache:
+            return self._dirs_cache[key]
         c = self.config
         h, w = c.height, c.width
-        u, v = self._rays()
+        u, v = self._rays(row_shift_px)
         dx = rot[0, 0] * u[None, :] + rot[0, 1] * v[:, None] + np.float32(rot[0, 2])
         dy = rot[1, 0] * u[None, :] + rot[1, 1] * v[:, None] + np.float32(rot[1, 2])
         dz = rot[2, 0] * u[None, :] + rot[2, 1] * v[:, None] + np.float32(rot[2, 2])
         dirs = tuple(np.broadcast_to(a, (h, w)).astype(np.float32) for a in (dx, dy, dz))
         for a in dirs:
             a.flags.writeable = False
-        self._dirs_cache = (key, dirs)
+        if len(self._dirs_cache) >= 2:
+            self._dirs_cache.clear()
+        self._dirs_cache[key] = dirs  # type: ignore[assignment]
         return dirs  # type: ignore[return-value]
 
     def _render_view(self, origin: np.ndarray, rot: np.ndarray,
                      dirs: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Ray-cast one view. Returns (intensity float32 0..1-ish, depth m, labels)."""
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Ray-cast one view. Returns (intensity float32 0..1-ish, depth m, labels, objects)."""
         c = self.config
         h, w = c.height, c.width
         # Ray direction in world = rot @ (u, v, 1); t along it is depth along the optical axis.
@@ -308,6 +166,7 @@ class Scene:
             tb = (np.float32(zbg) - np.float32(origin[2])) / dz
         hit = np.isfinite(tb) & (tb > 0)
         depth = np.where(hit, tb, np.float32(np.inf))
+        objects = np.where(hit, np.int16(0), np.int16(-1))
         px = origin[0] + tb * dx
         py = origin[1] + tb * dy
         # The foliage tile is laid at an angle whose tangent is the golden ratio's
@@ -315,12 +174,42 @@ class Scene:
         # every 3 m, inside SGBM's search range for far backgrounds, and SGBM
         # matched the wrong repeat with full confidence.
         scale = _TEX_SIZE / _TEX_M[False] * c.texture_scale
-        tex = self._sample(2, (px * _BG_COS - py * _BG_SIN) * scale, (px * _BG_SIN + py * _BG_COS) * scale)
+        ru, rv = (px * _BG_COS - py * _BG_SIN) * scale, (px * _BG_SIN + py * _BG_COS) * scale
+        tex = self._sample(2, ru, rv)
         intensity = np.where(hit, 0.55 * tex + 0.25, np.float32(0.0))
+        if self._sky_cut is not None:
+            # Gaps 4x coarser than the canopy's texture; through them the sky, at infinity.
+            sky = hit & (self._sample(3, ru * 0.25, rv * 0.25) > self._sky_cut)
+            depth[sky] = np.inf
+            objects[sky] = -1
+            labels[sky] = SKY
+            intensity[sky] = np.float32(c.sky_level)
 
-        for cyl in self.cylinders:
-            self._cast_cylinder(cyl, origin, rot, dx, dy, dz, depth, labels, intensity)
-        return intensity, depth, labels
+        needles = []
+        for i, cyl in enumerate(self.cylinders):
+            if cyl.kind == NEEDLE:
+                needles.append((i + 1, cyl))
+            else:
+                self._cast_cylinder(cyl, i + 1, origin, rot, dx, dy, dz, depth, labels, intensity, objects)
+        if needles:
+            alone = cast_needles(needles, origin, rot, (dx, dy, dz), c.focal_px, self.calibration.principal_point,
+                                 depth, labels, intensity, objects, _LIGHT)
+            for n in alone:
+                self._cast_cylinder(needles[n][1], needles[n][0], origin, rot, dx, dy, dz, depth, labels,
+                                    intensity, objects)
+        if self._shadows is not None:
+            self._shade(origin, dx, dy, dz, depth, objects, intensity)
+        return intensity, depth, labels, objects
+
+    def _shade(self, o: np.ndarray, dx, dy, dz, depth, objects, intensity) -> None:
+        """Darken what lies in another object's sun shadow (hard shadows: a sharp edge)."""
+        flat = np.flatnonzero(objects.ravel() >= 0)
+        t = depth.ravel()[flat]
+        x = o[0] + t * dx.ravel()[flat]
+        y = o[1] + t * dy.ravel()[flat]
+        z = o[2] + t * dz.ravel()[flat]
+        dark = flat[self._shadows.shadowed(x, y, z, objects.ravel()[flat])]
+        intensity.ravel()[dark] *= np.float32(1.0 - self.config.shadow_strength)
 
     def _sample(self, tex_id: int, tu: np.ndarray, tv: np.ndarray) -> np.ndarray:
         mx = np.ascontiguousarray(_wrap(tu), dtype=np.float32)
@@ -350,10 +239,7 @@ class Scene:
         """
         c = self.config
         h, w = c.height, c.width
-        n = max(1, math.ceil(cyl.length / cyl.radius))
-        step = cyl.length / n
-        rho = math.hypot(step / 2.0, cyl.radius)
-        centres = cyl.p0[None, :] + ((np.arange(n) + 0.5) * step)[:, None] * cyl.axis[None, :]
+        centres, _, rho = cyl.pieces()
         cam = (centres - o[None, :]) @ rot                     # rows: rot.T @ (C - o)
         cx, cy = self.calibration.principal_point
         zlo, zhi = cam[:, 2] - rho, cam[:, 2] + rho
@@ -363,7 +249,6 @@ class Scene:
         cam, zlo, zhi = cam[front], zlo[front], zhi[front]
         if not len(cam):
             return np.zeros(0, np.intp)
-        mask = np.zeros((h, w), bool)
         margin = 2
         bounds = []
         for axis, centre, size in ((0, cx, w), (1, cy, h)):
@@ -372,13 +257,20 @@ class Scene:
             hi = np.ceil(centre + c.focal_px * corners.max(axis=0)).astype(np.int64) + margin
             bounds.append((np.clip(lo, 0, size), np.clip(hi + 1, 0, size)))
         (j0, j1), (i0, i1) = bounds
-        for a, b, cc, d in zip(i0, i1, j0, j1):
-            if a < b and cc < d:
-                mask[a:b, cc:d] = True
-        return np.flatnonzero(mask)
+        keep = (i0 < i1) & (j0 < j1)
+        if not keep.any():
+            return np.zeros(0, np.intp)
+        i0, i1, j0, j1 = i0[keep], i1[keep], j0[keep], j1[keep]
+        # The union of the boxes, marked in their bounding box only (thin cylinders have many small ones).
+        bi, bj = int(i0.min()), int(j0.min())
+        mask = np.zeros((int(i1.max()) - bi, int(j1.max()) - bj), bool)
+        for a, b, cc, d in zip(i0 - bi, i1 - bi, j0 - bj, j1 - bj):
+            mask[a:b, cc:d] = True
+        rows, cols = np.nonzero(mask)
+        return (rows + bi) * w + (cols + bj)
 
-    def _cast_cylinder(self, cyl: Cylinder, o: np.ndarray, rot: np.ndarray, dx, dy, dz, depth, labels,
-                       intensity) -> None:
+    def _cast_cylinder(self, cyl: Cylinder, obj: int, o: np.ndarray, rot: np.ndarray, dx, dy, dz, depth, labels,
+                       intensity, objects) -> None:
         idx = self._candidates(cyl, o, rot)
         if idx is None:
             idx = np.arange(depth.size)
@@ -431,21 +323,8 @@ class Scene:
         shade = 0.35 + 0.65 * np.clip((nx * _LIGHT[0] + ny * _LIGHT[1] + nz * _LIGHT[2]) / cyl.radius, 0, 1)
         depth.ravel()[flat] = tt
         labels.ravel()[flat] = cyl.kind
+        objects.ravel()[flat] = obj
         intensity.ravel()[flat] = (cyl.albedo * (0.45 + 0.55 * tex) * shade).astype(np.float32)
-
-    def _finish(self, intensity: np.ndarray, labels: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        c = self.config
-        img = (intensity - 0.5) * c.contrast + 0.5
-        img = img * 255.0 + c.brightness
-        if c.blur_sigma > 0:
-            img = cv2.GaussianBlur(img, (0, 0), c.blur_sigma)
-        if c.noise_std > 0:
-            img = img + rng.standard_normal(img.shape, dtype=np.float32) * np.float32(c.noise_std)
-        grey = np.clip(img, 0, 255).astype(np.uint8)
-        if not c.color:
-            return grey
-        tint = np.array([[0.85, 1.0, 0.9], [0.55, 0.75, 1.0], [0.6, 0.8, 1.05]], np.float32)[labels]  # BGR
-        return np.clip(grey[..., None] * tint, 0, 255).astype(np.uint8)
 
     def render(self, pose: Pose | None = None, rng: np.random.Generator | None = None) -> StereoFrame:
         """Render both views at ``pose`` (default identity). ``rng`` draws the sensor noise."""
@@ -455,52 +334,20 @@ class Scene:
         o_left = np.asarray(pose.position, dtype=np.float64)
         o_right = o_left + rot @ np.array([self.config.baseline_m, 0.0, 0.0])
         dirs = self._directions(rot)
-        il, depth, labels = self._render_view(o_left, rot, dirs)
-        ir, _, labels_r = self._render_view(o_right, rot, dirs)
-        left = self._finish(il, labels, rng)
-        right = self._finish(ir, labels_r, rng)
+        il, depth, labels, objects = self._render_view(o_left, rot, dirs)
+        dirs_r = dirs if self.config.rect_error_px == 0 else self._directions(rot, self.config.rect_error_px)
+        ir, _, labels_r, _ = self._render_view(o_right, rot, dirs_r)
+        left = finish(self.config, il, labels, rng)
+        right = finish(self.config, ir, labels_r, rng, right=True)
         with np.errstate(divide="ignore"):
             disp = (self.config.focal_px * self.config.baseline_m / depth).astype(np.float32)
-        return StereoFrame(left, right, disp, depth, labels)
-
-
-def background_period_px(config: SceneConfig) -> float:
-    """Image period of the background's texture tile, px (at the identity pose).
-
-    The far plane's texture tile spans ``3 / texture_scale`` m and is laid at an
-    irrational angle, so an image row meets a near-repeat of it only every
-    sqrt(34) tiles. When that period in the image lies inside the disparity search
-    range, SGBM could find a false but consistent match one period away: an
-    artefact of the scene, not of the matcher (real foliage does not repeat).
-    Benchmarks that judge ranging keep it outside the search range.
-    """
-    tile_m = _TEX_M[False] * _BG_REPEAT_TILES / config.texture_scale
-    return tile_m * config.focal_px / config.background_distance_m
+        return StereoFrame(left, right, disp, depth, labels, objects, self.thickness_m, self.config.focal_px)
 
 
 def render_pair(config: SceneConfig, pose: Pose | None = None, frame_index: int = 0) -> StereoFrame:
     """Build ``config``'s scene and render one frame; the noise is seeded by (seed, frame_index)."""
     scene = Scene(config)
     return scene.render(pose, np.random.default_rng([config.seed, frame_index]))
-
-
-def vary(config: SceneConfig, rng: np.random.Generator, **fixed: Any) -> SceneConfig:
-    """A scene with randomly varied imaging conditions and geometry (the paper's
-    "varied imaging conditions"), drawn from ``rng``; ``fixed`` overrides any key."""
-    drawn = dict(
-        branch_distance_m=float(rng.uniform(0.5, 2.0)),
-        branch_radius_m=float(rng.uniform(0.015, 0.05)),
-        n_branches=int(rng.integers(2, 7)),
-        background_distance_m=float(rng.uniform(5.0, 15.0)),
-        brightness=float(rng.uniform(-40, 40)),
-        contrast=float(rng.uniform(0.6, 1.3)),
-        noise_std=float(rng.uniform(0.5, 4.0)),
-        blur_sigma=float(rng.choice([0.0, 0.0, 0.6, 1.0])),
-        texture_scale=float(rng.uniform(0.7, 1.6)),
-        seed=int(rng.integers(0, 2**31 - 1)),
-    )
-    drawn.update(fixed)
-    return replace(config, **drawn)
 
 
 def time_render(config: SceneConfig, repeats: int = 3) -> float:

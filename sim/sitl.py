@@ -47,6 +47,18 @@ R_BODY_CAMERA = np.array([[0.0, 0.0, 1.0],
 #: MAVLink message ids requested with MAV_CMD_SET_MESSAGE_INTERVAL.
 MSG_ATTITUDE, MSG_LOCAL_POSITION_NED = 30, 32
 
+#: HEARTBEAT.autopilot of a component that is no flight controller (ground stations, companions).
+MAV_AUTOPILOT_INVALID = 8
+
+
+def is_autopilot_heartbeat(msg: Any) -> bool:
+    """True for a HEARTBEAT sent by a flight controller (its ``autopilot`` field names one).
+
+    Ground stations (MAVProxy, QGroundControl) and companion computers, this daemon
+    included, send MAV_AUTOPILOT_INVALID.
+    """
+    return msg.get_type() == "HEARTBEAT" and int(msg.autopilot) != MAV_AUTOPILOT_INVALID
+
 
 def rot_x(a: float) -> np.ndarray:
     c, s = math.cos(a), math.sin(a)
@@ -251,6 +263,23 @@ class PoseTracker:
         with self._lock:
             return self._state_locked()
 
+    def ready(self) -> bool:
+        """True when a pose can be rendered now: both messages heard, the anchor known, the pose fresh."""
+        with self._lock:
+            state, anchor = self._state_locked(), self._anchor
+        return state is not None and anchor is not None and self.clock() - state.t <= self.config.pose_timeout_s
+
+    def waiting_for(self, autopilot: tuple[int, int] | None) -> str:
+        """What is still missing before :meth:`ready`, in words (``autopilot``: the link's, if heard)."""
+        with self._lock:
+            pos, att = self._position is not None, self._attitude is not None
+        who = ("no autopilot HEARTBEAT heard" if autopilot is None
+               else "autopilot system %d component %d heard" % autopilot)
+        if pos and att:
+            return f"{who}; its pose is older than {self.config.pose_timeout_s:g} s"
+        missing = " and ".join(n for n, have in (("LOCAL_POSITION_NED", pos), ("ATTITUDE", att)) if not have)
+        return f"{who}; no {missing} yet"
+
     @property
     def anchor(self) -> Anchor | None:
         with self._lock:
@@ -271,6 +300,28 @@ class PoseTracker:
         if age > self.config.pose_timeout_s:
             raise SourceError(f"sitl: the autopilot's pose is {age:.1f} s old (limit {self.config.pose_timeout_s:g} s)")
         return anchor.pose(state, self.config.mount)
+
+
+class ScriptedPose:
+    """The synthetic source's scripted motion as a pose provider that refuses to fly toward an autopilot.
+
+    ``scripted``: seconds -> Pose (the source config's ``scripted_pose``);
+    ``autopilot``: returns the (system, component) of an autopilot heard on the
+    link, or None. Once one is heard, nothing more is rendered (SourceError, so
+    nothing is sent) unless ``force``.
+    """
+
+    def __init__(self, scripted: Callable[[float], Pose], autopilot: Callable[[], Any], force: bool = False):
+        self.scripted = scripted
+        self.autopilot = autopilot
+        self.force = force
+
+    def __call__(self, t_s: float = 0.0) -> Pose:
+        ap = self.autopilot()
+        if ap is not None and not self.force:
+            raise SourceError("sitl: an autopilot (system %d component %d) is on the link: the scripted approach "
+                              "stops (--force-scripted flies it anyway)" % tuple(ap))
+        return self.scripted(t_s)
 
 
 class PoseRecorder:
@@ -301,15 +352,17 @@ class PoseRecorder:
 
 
 CSV_COLUMNS = ("time_s", "frame", "north_m", "east_m", "down_m", "roll_deg", "pitch_deg", "yaw_deg",
-               "truth_m", "measured_m", "sigma_m", "quality", "error_pct", "latency_ms", "reason")
+               "truth_m", "measured_m", "sigma_m", "quality", "error_pct", "latency_ms", "reason", "monotonic_s")
 
 
 class TruthLog:
     """Every processed frame of a running service as one CSV row: pose, truth, measurement.
 
     Polls ``service.last_estimate`` on a thread of its own (never in the frame loop).
-    ``error_pct`` = 100 (measured - truth) / truth. Rows are flushed as written, so
-    a killed run keeps what it logged.
+    ``error_pct`` = 100 (measured - truth) / truth. ``monotonic_s``: the capture time
+    on the system-wide monotonic clock (CLOCK_MONOTONIC), so another process on the
+    same machine (a SITL harness) can line rows up with what it saw. Rows are
+    flushed as written, so a killed run keeps what it logged.
     """
 
     def __init__(self, path: str | Path, service: Any, recorder: PoseRecorder | None = None,
@@ -358,7 +411,7 @@ class TruthLog:
                 if state is not None else [""] * 6)
         self._writer.writerow([f(est.t_capture - self.service.t0, 3), est.frame_index, *pose, f(est.truth_m),
                                f(m.distance_m), f(m.sigma_m), m.quality, f(err, 2),
-                               f(est.timings_ms.get("latency"), 1), m.reason or ""])
+                               f(est.timings_ms.get("latency"), 1), m.reason or "", f(est.t_capture, 3)])
         self.rows += 1
 
     def close(self, timeout_s: float = 1.0) -> None:

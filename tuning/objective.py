@@ -28,7 +28,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from uav_depth.core.disparity import DisparityPipeline, DisparityResult
+from uav_depth.core.disparity import DisparityPipeline, DisparityResult, flight_pipeline
 from uav_depth.core.errors import ParameterWarning
 from uav_depth.core.calibration import Calibration
 from uav_depth.core.params import StereoParams, params_from_dict
@@ -226,7 +226,10 @@ def evaluate(params: StereoParams, frames: FrameSet, fitness: Fitness, full: boo
     convention = convention or default_convention(fitness.name)
     t_start = time.perf_counter()
     try:
-        pipeline = DisparityPipeline(params)
+        # A flown evaluation runs what flies (core.disparity.flight_pipeline: no WLS smoothing, the near
+        # check the ranging consults); the paper's fitnesses and selfsup score the WLS map.
+        flown = fitness.name in FLOWN_FITNESS and convention == "bench"
+        pipeline = flight_pipeline(params) if flown else DisparityPipeline(params)
         per_frame, extras, times = [], [], []
         for frame in frames.frames:
             t0 = time.perf_counter()

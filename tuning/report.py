@@ -194,7 +194,7 @@ def side_by_side(path: Path, frame, base: StereoParams, tuned: StereoParams) -> 
     """reference | base | tuned disparity (one colour scale) as one PNG: the map the daemon ranges on."""
     import cv2
 
-    maps = [flown_map(DisparityPipeline(p).run(frame.left, frame.right)) for p in (base, tuned)]
+    maps = [flown_map(DisparityPipeline(p, refine=False).run(frame.left, frame.right)) for p in (base, tuned)]
     if frame.reference is not None:
         maps.insert(0, frame.reference)
     finite = [m[np.isfinite(m)] for m in maps]

@@ -25,7 +25,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.core.disparity import flight_pipeline
 from uav_depth.core.errors import ConfigError, UavDepthError
 from uav_depth.core.params import OPENCV_COST_MAX, StereoParams, params_from_dict
 
@@ -310,9 +310,9 @@ def search_front(store: RunStore, fitness_name: str) -> list[dict[str, Any]]:
 
 
 def time_params(params: StereoParams, frames: FrameSet, repeats: int = 3) -> float:
-    """Median over ``repeats`` of the mean ms per frame, in this process with OpenCV's default threads
-    (how the daemon runs it)."""
-    pipe = DisparityPipeline(params)
+    """Median over ``repeats`` of the mean ms per frame of what flies (``flight_pipeline``: no WLS
+    smoothing), in this process with OpenCV's default threads (how the daemon runs it)."""
+    pipe = flight_pipeline(params)
     samples = []
     for _ in range(repeats):
         t0 = time.perf_counter()

@@ -3,13 +3,20 @@
 It reads the autopilot's LOCAL_POSITION_NED and ATTITUDE over the same MAVLink
 connection it sends DISTANCE_SENSOR on (asking for them with
 MAV_CMD_SET_MESSAGE_INTERVAL), renders the tree scene of the config's synthetic
-source from the vehicle's pose, and runs the real daemon on those frames. Without
-an autopilot (none heard within --wait-s, or --scripted) the source's own scripted
-approach stands in. Every processed frame goes into a CSV beside its ground truth,
-so a run can be scored afterwards.
+source from the vehicle's pose, and runs the real daemon on those frames. Every
+processed frame goes into a CSV beside its ground truth, so a run can be scored
+afterwards.
 
-Exit codes as ``uav-depth run``: 0 after a clean stop, 78 for a bad config, 69 when
-no frame could be rendered at start-up, 1 otherwise.
+No pose, no distance: the rig moves only with the autopilot's pose. Until the
+first fresh pose arrives, and whenever it goes stale, nothing is rendered and no
+distance is sent (the daemon is blind, as with a lost camera). There is no
+fallback: the source's scripted approach flies only with ``--scripted``, and
+never toward a link that carries an autopilot's HEARTBEAT (an autopilot fed
+made-up distances flies on them) unless ``--force-scripted`` is given as well.
+
+Exit codes as ``uav-depth run``: 0 after a clean stop, 78 for a bad config or
+``--scripted`` toward an autopilot, 69 when no pose came within ``--wait-s`` or no
+frame could be rendered at start-up, 1 otherwise.
 """
 
 from __future__ import annotations
@@ -35,10 +42,18 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="rate requested for LOCAL_POSITION_NED and ATTITUDE (default 30)")
     g.add_argument("--pose-timeout-s", type=float, default=1.0, metavar="S",
                    help="an autopilot pose older than this is not rendered: no measurement is sent (default 1)")
-    g.add_argument("--wait-s", type=float, default=30.0, metavar="S",
-                   help="wait this long for the autopilot's first pose, then fly the scripted approach (default 30)")
+    g.add_argument("--wait-s", type=float, default=0.0, metavar="S",
+                   help="give up (exit 69) when the autopilot's first pose has not come within S s; nothing is "
+                        "sent meanwhile (default 0: wait as long as it takes; ArduPilot SITL streams its pose "
+                        "about 40 s after boot)")
     g.add_argument("--scripted", action="store_true",
-                   help="no autopilot: fly the synthetic source's scripted approach (approach_speed_mps)")
+                   help="no autopilot: fly the synthetic source's scripted approach (approach_speed_mps); refused "
+                        "when an autopilot's HEARTBEAT is heard on the link")
+    g.add_argument("--force-scripted", action="store_true",
+                   help="with --scripted: fly the scripted approach even toward an autopilot, which then receives "
+                        "made-up distances (never on a vehicle that flies)")
+    g.add_argument("--listen-s", type=float, default=2.5, metavar="S",
+                   help="with --scripted: listen this long for an autopilot's HEARTBEAT before flying (default 2.5)")
     g.add_argument("--truth-log", metavar="FILE",
                    help="CSV of every processed frame: pose, ground truth, measured distance "
                         "(default: sitl-<time>.csv in logging.dir, or in the current directory)")
@@ -51,14 +66,14 @@ def run(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
-    from uav_depth.cli.main import EXIT_CONFIG
+    from uav_depth.cli.main import EXIT_CONFIG, EXIT_UNAVAILABLE
     from uav_depth.cli.sources import SOURCES
     from uav_depth.daemon.config import load_run_config
     from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError
     from uav_depth.daemon.mavlink_out import MavlinkLink
     from uav_depth.daemon.service import Service
     from uav_depth.sim.sitl import MSG_ATTITUDE, MSG_LOCAL_POSITION_NED, PoseRecorder, PoseTracker, \
-        SitlConfig, TruthLog
+        ScriptedPose, SitlConfig, TruthLog, is_autopilot_heartbeat
 
     run_command.setup_logging(args.log_level)
     log = logging.getLogger("uav_depth.sitl")
@@ -73,12 +88,17 @@ def run(args: argparse.Namespace) -> int:
                           camera_pitch_deg=args.camera_pitch_deg, pose_rate_hz=args.pose_rate_hz,
                           pose_timeout_s=args.pose_timeout_s)
         if not 0 <= args.wait_s <= 3600:
-            raise ConfigError("--wait-s", "must be between 0 and 3600", args.wait_s)
+            raise ConfigError("--wait-s", "must be between 0 (no limit) and 3600", args.wait_s)
+        if not 0 <= args.listen_s <= 60:
+            raise ConfigError("--listen-s", "must be between 0 and 60", args.listen_s)
+        if args.force_scripted and not args.scripted:
+            raise ConfigError("--force-scripted", "only goes with --scripted", True)
     except (ConfigError, CalibrationError, FileFormatError) as exc:
         err(exc)
         return EXIT_CONFIG
     if args.check:
-        print(f"config valid: {config.summary()}; {sitl.describe(config.source.scene.branch_distance_m)}")
+        print(f"config valid: {config.summary()}; {sitl.describe(config.source.scene.branch_distance_m)}"
+              + ("; scripted approach" if args.scripted else ""))
         return 0
 
     stop = threading.Event()
@@ -88,30 +108,64 @@ def run(args: argparse.Namespace) -> int:
     link = MavlinkLink(config.mavlink, svc.reconnect_min_s, svc.reconnect_max_s)
     tracker = PoseTracker(sitl, config.source.scene.branch_distance_m)
     recorder = None
-    if not args.scripted:
+    refused: list[str] = []
+    if args.scripted:
+        def autopilot_heard(msg) -> None:   # on the link's thread: only note it and stop
+            if is_autopilot_heartbeat(msg) and not args.force_scripted and not refused:
+                refused.append(f"system {msg.get_srcSystem()} component {msg.get_srcComponent()} "
+                               f"on {config.mavlink.url}")
+                stop.set()
+        link.subscribe("HEARTBEAT", autopilot_heard)
+        link.start()
+        log.info("scripted approach: listening %.1f s for an autopilot's HEARTBEAT on %s first", args.listen_s,
+                 config.mavlink.url)
+        deadline = time.monotonic() + args.listen_s
+        while link.autopilot is None and not refused and not stop.wait(0.05) and time.monotonic() < deadline:
+            pass
+        if refused or (link.autopilot is not None and not args.force_scripted):
+            link.close()
+            err(scripted_refusal(refused[0] if refused else "system %d component %d on %s" % (
+                *link.autopilot, config.mavlink.url)))
+            return EXIT_CONFIG
+        if stop.is_set():
+            link.close()
+            return 0
+        if link.autopilot is not None:
+            log.warning("--force-scripted: the autopilot (system %d component %d) receives the scripted approach's "
+                        "made-up distances", *link.autopilot)
+        pose_provider = ScriptedPose(config.source.scripted_pose, lambda: link.autopilot, args.force_scripted)
+    else:
         link.subscribe("LOCAL_POSITION_NED", tracker.on_message)
         link.subscribe("ATTITUDE", tracker.on_message)
         # Remembered by the link and sent again when the autopilot (re)appears.
         link.request_message_interval(MSG_LOCAL_POSITION_NED, sitl.pose_rate_hz)
         link.request_message_interval(MSG_ATTITUDE, sitl.pose_rate_hz)
         link.start()
-        log.info("waiting up to %.0f s for the autopilot's LOCAL_POSITION_NED and ATTITUDE on %s", args.wait_s,
-                 config.mavlink.url)
-        deadline = time.monotonic() + args.wait_s
-        while tracker.anchor is None and time.monotonic() < deadline and not stop.wait(0.05):
-            pass
+        limit = f"up to {args.wait_s:g} s" if args.wait_s > 0 else "as long as it takes"
+        log.info("waiting %s for the autopilot's LOCAL_POSITION_NED and ATTITUDE on %s; no distance is sent "
+                 "before (ArduPilot streams them once its EKF uses GPS)", limit, config.mavlink.url)
+        t0 = time.monotonic()
+        next_note = t0 + 10.0
+        while not tracker.ready() and not stop.wait(0.05):
+            now = time.monotonic()
+            if args.wait_s > 0 and now - t0 > args.wait_s:
+                link.close()
+                err(f"no fresh pose (LOCAL_POSITION_NED and ATTITUDE) from an autopilot on {config.mavlink.url} "
+                    f"within --wait-s {args.wait_s:g} s ({tracker.waiting_for(link.autopilot)})")
+                return EXIT_UNAVAILABLE
+            if now >= next_note:
+                log.info("still blind after %.0f s: %s", now - t0, tracker.waiting_for(link.autopilot))
+                next_note = now + 10.0
         if stop.is_set():
             link.close()
             return 0
-        if tracker.anchor is None:
-            log.warning("no pose from an autopilot within %.0f s: flying the scripted approach instead", args.wait_s)
-        else:
-            tree = tracker.tree_ned()
-            log.info("autopilot system %d: tree (target branch) at N %.2f E %.2f D %.2f m, approached at heading "
-                     "%.0f deg", tracker.sysid, tree[0], tree[1], tree[2], sitl_heading_deg(tracker))
-            recorder = PoseRecorder(tracker)
+        tree = tracker.tree_ned()
+        log.info("autopilot system %d: tree (target branch) at N %.2f E %.2f D %.2f m, approached at heading "
+                 "%.0f deg", tracker.sysid, tree[0], tree[1], tree[2], sitl_heading_deg(tracker))
+        recorder = PoseRecorder(tracker)
+        pose_provider = recorder
     try:
-        service = Service(config, pose_provider=recorder, link=link)
+        service = Service(config, pose_provider=pose_provider, link=link)
     except (ConfigError, CalibrationError, FileFormatError) as exc:
         link.close()
         err(exc)
@@ -125,7 +179,18 @@ def run(args: argparse.Namespace) -> int:
         truth.close()
         log.info("truth log %s: %s", path, truth.summary())
 
-    return run_command.serve(service, stop, "sitl", cleanup=close_truth)
+    code = run_command.serve(service, stop, "sitl", cleanup=close_truth)
+    if refused:
+        err(scripted_refusal(refused[0]))
+        return EXIT_CONFIG
+    return code
+
+
+def scripted_refusal(who: str):
+    from uav_depth.core.errors import ConfigError
+
+    return ConfigError("--scripted", "must not fly toward a link that carries an autopilot's HEARTBEAT (it would "
+                       "receive made-up distances; add --force-scripted to insist)", who)
 
 
 def sitl_heading_deg(tracker) -> float:

@@ -219,3 +219,71 @@ def test_3way_result_does_not_depend_on_opencv_threads(motorcycle):
         cv2.setNumThreads(before)
     assert np.array_equal(one.disparity, three.disparity, equal_nan=True)
     assert np.array_equal(one.measured, three.measured, equal_nan=True)
+
+
+# -- one path, stage by stage -------------------------------------------------------------------------------------
+
+
+def _opencv_confidence(params, left, right):
+    """WLS's own left-right confidence map (0..1) for a pair matched as given."""
+    import cv2
+
+    from uav_depth.core.disparity.match import build_matchers
+
+    m = build_matchers(params)
+    l16, r16 = m.left.compute(left, right), m.right.compute(right, left)
+    m.wls.filter(l16, left, disparity_map_right=r16)
+    return np.clip(m.wls.getConfidenceMap() * np.float32(1.0 / 255.0), 0.0, 1.0)
+
+
+@pytest.mark.parametrize("changes", [{}, {"sgbm.block_size": 3, "sgbm.mode": "sgbm_3way"},
+                                     {"sgbm.min_disparity": -16, "sgbm.num_disparities": 64}],
+                         ids=["baseline", "block3-3way", "negative-min"])
+def test_confidence_is_opencv_wls_confidence_value_for_value(motorcycle, changes):
+    """The confidence stage computes WLS's map itself (so the smoothing can be skipped): bit for bit."""
+    left, right, _ = motorcycle
+    params = DEFAULT_PARAMS.replace(**changes)
+    res = DisparityPipeline(params, refine=False).run(left, right)
+    assert np.array_equal(res.confidence, _opencv_confidence(params, left, right))
+
+
+@pytest.mark.parametrize("changes", [{}, {"compute.roi": ROI, "compute.scale": 0.5, "sgbm.num_disparities": 64},
+                                     {"compute.roi": ROI, "compute.scale": 0.5, "sgbm.num_disparities": 64,
+                                      "compute.wls_at": "matched", "compute.grey": True}],
+                         ids=["baseline", "roi-half-wls-input", "roi-half-wls-matched"])
+def test_without_refine_measured_and_confidence_are_unchanged_and_wls_is_skipped(small_frame, changes):
+    _, f = small_frame
+    params = DEFAULT_PARAMS.replace(**changes)
+    full = DisparityPipeline(params).run(f.left, f.right)
+    lean = DisparityPipeline(params, refine=False).run(f.left, f.right)
+    assert np.array_equal(full.measured, lean.measured, equal_nan=True)
+    assert np.array_equal(full.confidence, lean.confidence)
+    assert np.array_equal(lean.disparity, lean.measured, equal_nan=True)
+    assert not np.array_equal(full.disparity, full.measured, equal_nan=True)    # WLS did fill in
+    assert "wls" in full.timings_ms and "wls" not in lean.timings_ms
+
+
+@pytest.mark.parametrize("shape", [(8, 8), (1, 1), (3, 100), (300, 8), (8, 8, 3)], ids=str)
+@pytest.mark.parametrize("flight", [False, True], ids=["baseline", "flight"])
+def test_images_narrower_than_the_search_give_empty_maps_not_an_opencv_error(shape, flight):
+    from pathlib import Path
+
+    from uav_depth.core.params import load_params
+
+    path = Path(__file__).resolve().parents[2] / "deploy" / "params-flight.yaml"
+    params = load_params(path) if flight else DEFAULT_PARAMS
+    rng = np.random.default_rng(0)
+    left, right = rng.integers(0, 256, shape, dtype=np.uint8), rng.integers(0, 256, shape, dtype=np.uint8)
+    res = DisparityPipeline(params).run(left, right)
+    assert res.measured.shape == shape[:2] and np.isnan(res.measured).all() and np.isnan(res.disparity).all()
+    assert res.confidence is not None and not res.confidence.any()
+
+
+def test_the_full_frame_is_a_window_like_any_other(small_frame):
+    """A region covering the frame at full resolution computes what the default does, bit for bit."""
+    from uav_depth.core.disparity.window import window
+
+    _, f = small_frame
+    h, w = f.left.shape
+    win = window(DEFAULT_PARAMS, w, h)
+    assert win.crop == win.region == (0, 0, w, h) and win.matched == (w, h) and not win.resized

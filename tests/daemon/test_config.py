@@ -141,8 +141,3 @@ def test_reference_documents_every_key():
     for kind in SOURCES:
         for key in source_keys(kind, SOURCES):
             assert f"`source.{key.name}` ({kind})" in table
-
-
-def test_readme_config_reference_is_the_generated_table():
-    readme = (ROOT / "README.md").read_text()
-    assert reference_markdown(SOURCES) in readme, "README's config reference is stale: paste reference_markdown(SOURCES)"

@@ -157,3 +157,45 @@ def test_fixed_tree_is_approached_from_the_start_position():
 def test_bad_sitl_settings(kwargs, message):
     with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)")):
         SitlConfig(**kwargs)
+
+
+def test_only_a_flight_controller_heartbeat_counts_as_an_autopilot():
+    from uav_depth.sim.sitl import is_autopilot_heartbeat
+    mav = mavlink2.MAVLink(None)
+    hb = lambda mav_type, autopilot: _parsed(mav.heartbeat_encode(mav_type, autopilot, 0, 0, 4))  # noqa: E731
+    assert is_autopilot_heartbeat(hb(2, 3))           # quadrotor, ArduPilot
+    assert is_autopilot_heartbeat(hb(2, 12))          # quadrotor, PX4
+    assert not is_autopilot_heartbeat(hb(6, 8))       # MAVProxy / QGroundControl: GCS, autopilot invalid
+    assert not is_autopilot_heartbeat(hb(18, 8))      # a companion computer (this daemon)
+    assert not is_autopilot_heartbeat(_parsed(mav.attitude_encode(0, 0, 0, 0, 0, 0, 0)))
+
+
+def test_tracker_is_ready_only_with_a_fresh_pose_and_says_what_it_lacks():
+    mav = mavlink2.MAVLink(None)
+    now = [100.0]
+    tracker = PoseTracker(SitlConfig(tree_ned_m=(5.0, 0.0, -3.0), pose_timeout_s=0.5), 2.0, clock=lambda: now[0])
+    assert not tracker.ready()
+    assert tracker.waiting_for(None) == "no autopilot HEARTBEAT heard; no LOCAL_POSITION_NED and ATTITUDE yet"
+    tracker.on_message(_parsed(mav.local_position_ned_encode(0, 1.0, 0.0, -3.0, 0, 0, 0)))
+    assert not tracker.ready()
+    assert tracker.waiting_for((1, 1)) == "autopilot system 1 component 1 heard; no ATTITUDE yet"
+    tracker.on_message(_parsed(mav.attitude_encode(0, 0, 0, 0, 0, 0, 0)))
+    assert tracker.ready()
+    now[0] += 0.6
+    assert not tracker.ready()
+    assert tracker.waiting_for((1, 1)) == "autopilot system 1 component 1 heard; its pose is older than 0.5 s"
+    with pytest.raises(SourceError, match="old"):
+        tracker()
+
+
+def test_scripted_pose_stops_once_an_autopilot_is_heard():
+    from uav_depth.sim.sitl import ScriptedPose
+    from uav_depth.sim.scene import Pose
+    heard = [None]
+    scripted = ScriptedPose(lambda t: Pose.forward(0.1 * t), lambda: heard[0])
+    np.testing.assert_allclose(scripted(2.0).position, Pose.forward(0.2).position)
+    heard[0] = (1, 1)
+    with pytest.raises(SourceError, match=r"autopilot \(system 1 component 1\) is on the link"):
+        scripted(3.0)
+    forced = ScriptedPose(lambda t: Pose.forward(0.1 * t), lambda: (1, 1), force=True)
+    np.testing.assert_allclose(forced(3.0).position, Pose.forward(0.3).position)

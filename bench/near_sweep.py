@@ -1,0 +1,167 @@
+"""Near sweep: branch distances from 0.05 m to the flight file's far working distance, every frame judged on the wire.
+
+For each parameter set (manual baseline = core.params DEFAULT_PARAMS, and
+deploy/params-flight.yaml), each scene variant and seed, a branch is placed at
+every distance of the sweep (1 cm steps by default) on 1280x720 synthetic pairs
+(focal 700 px, baseline 63 mm) and measured as the daemon does: the real
+pipeline, ``daemon.ranging.Ranger`` and ``mavlink_out.distance_report``. The truth is
+the nearest significant object in the ranging region (sim/truth.py: at least 3 mm
+thick, at least 2 cm^2 visible; docs/scenes.md).
+
+Variants: ``plain`` (the issue's reproduction: SceneConfig(seed, branch_distance_m=d,
+branch_radius_m=0.03)), ``varied`` (``vary``: imaging conditions and geometry drawn
+per seed) and ``leafy`` (``SceneConfig.leafy``: twigs, needles and a small branch in
+front, sky, shadows, the eyes' differences).
+
+Printed per parameter set: frames; frames whose truth lies inside the minimum range
+and how many of them were reported too close / sent as a valid distance; frames
+reported farther than the truth by more than 2 % (valid distances only); median and
+worst error of the valid distances (signed, relative to the truth); frames without a
+measurement. Renders are cached in /tmp/uav-depth-scene-cache (UAV_DEPTH_SCENE_CACHE),
+about 1.8 MB a frame, shared by both parameter sets and by reruns.
+
+    .venv/bin/python bench/near_sweep.py --quick            # 14 distances x 2 seeds x 3 variants
+    .venv/bin/python bench/near_sweep.py                    # the full sweep (296 distances x 5 seeds x 3)
+    .venv/bin/python bench/near_sweep.py --min-m 0.05 --max-m 0.4 --params flight --json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from typing import Any, Callable
+
+import numpy as np
+
+from scenebench import Measurer, fmt_pct, flight_max_range_m, param_sets, rel_err, render_cached
+
+from uav_depth.cli.benchmark import machine_line
+from uav_depth.sim.scene import SceneConfig, vary
+
+VARIANTS: dict[str, Callable[[float, int], SceneConfig]] = {
+    "plain": lambda d, seed: SceneConfig(seed=seed, branch_distance_m=d, branch_radius_m=0.03),
+    "varied": lambda d, seed: vary(SceneConfig(), np.random.default_rng([seed, 101]), branch_distance_m=d),
+    "leafy": lambda d, seed: SceneConfig.leafy(seed=seed, branch_distance_m=d),
+}
+QUICK_DISTANCES = (0.05, 0.10, 0.15, 0.20, 0.25, 0.27, 0.29, 0.32, 0.40, 0.60, 1.00, 1.50, 2.00, 3.00)
+FARTHER_TOL = 0.02
+
+
+def distances(min_m: float, max_m: float, step_m: float) -> list[float]:
+    n = int(math.floor((max_m - min_m) / step_m + 1e-9))
+    return [round(min_m + i * step_m, 4) for i in range(n + 1)]
+
+
+def sweep(dists, seeds, variants=tuple(VARIANTS), params_names=("baseline", "flight"), cache: bool = True,
+          progress: bool = False) -> list[dict[str, Any]]:
+    """One row per (parameter set, variant, seed, distance): truth, what the wire says, the judgement."""
+    sets = param_sets(params_names)
+    rows = []
+    cal_cfg = SceneConfig()
+    measurers = {name: Measurer(p, cal_cfg) for name, p in sets.items()}
+    t0 = time.monotonic()
+    total = len(variants) * len(seeds) * len(dists)
+    done = 0
+    for variant in variants:
+        for seed in seeds:
+            for d in dists:
+                cfg = VARIANTS[variant](d, seed)
+                frame = render_cached(cfg, cache)
+                for name, meas in measurers.items():
+                    out = meas.measure(frame.left, frame.right)
+                    inside = frame.truth_m < meas.min_range_m
+                    err = rel_err(out["reported_m"], frame.truth_m)
+                    out["exact_err"] = rel_err(meas.measure_exact(frame.disparity), frame.truth_m)
+                    rows.append({"params": name, "variant": variant, "seed": seed, "distance_m": d,
+                                 "truth_m": frame.truth_m, "nearest_any_m": frame.nearest_any_m,
+                                 "min_range_m": meas.min_range_m, "inside_min": bool(inside), **out, "err": err,
+                                 "farther": bool(err is not None and err > FARTHER_TOL)})
+                done += 1
+                if progress and done % 20 == 0:
+                    el = time.monotonic() - t0
+                    print(f"  ... {done}/{total} frames, {el:.0f} s, eta {el / done * (total - done):.0f} s",
+                          file=sys.stderr, flush=True)
+    return rows
+
+
+def summarize(rows: list[dict[str, Any]], by_variant: bool = True) -> list[dict[str, Any]]:
+    """Per parameter set over all variants ("all"), then per (parameter set, variant)."""
+    groups = [(name, "all") for name in dict.fromkeys(r["params"] for r in rows)]
+    if by_variant:
+        groups += list(dict.fromkeys((r["params"], r["variant"]) for r in rows))
+    out = []
+    for name, variant in groups:
+        rs = [r for r in rows if r["params"] == name and variant in ("all", r["variant"])]
+        inside = [r for r in rs if r["inside_min"]]
+        errs = [r["err"] for r in rs if r["err"] is not None and not r["inside_min"]]
+        worst = max(errs, key=abs) if errs else None
+        out.append({
+            "params": name, "variant": variant, "frames": len(rs), "min_range_m": rs[0]["min_range_m"],
+            "inside_min": len(inside), "inside_min_too_close": sum(r["too_close"] for r in inside),
+            "inside_min_sent_valid": sum(r["reported_m"] is not None for r in inside),
+            "too_close_in_range": sum(r["too_close"] for r in rs if not r["inside_min"]),
+            "farther_2pct": sum(r["farther"] for r in rs),
+            "farther_2pct_inside_min": sum(r["farther"] for r in inside),
+            "median_abs_err": float(np.median(np.abs(errs))) if errs else None,
+            "exact_farther_2pct": sum(r["exact_err"] is not None and r["exact_err"] > FARTHER_TOL
+                                      for r in rs if not r["inside_min"]),
+            "worst_err": worst,
+            "no_measurement": sum(r["reported_m"] is None and not r["too_close"] for r in rs if not r["inside_min"]),
+            "frames_in_range": len(rs) - len(inside),
+        })
+    return out
+
+
+def format_table(summary: list[dict[str, Any]]) -> str:
+    head = (f"{'params':9s} {'variant':7s} {'frames':>6s} {'min m':>6s} {'inside':>6s} {'too close':>9s} {'sent valid':>10s} "
+            f"{'farther>2%':>10s} {'median|e|':>9s} {'worst':>8s} {'no meas':>7s} {'close!':>6s} {'exact>2%':>8s}")
+    lines = [head, "-" * len(head)]
+    for s in summary:
+        lines.append(f"{s['params']:9s} {s['variant']:7s} {s['frames']:6d} {s['min_range_m']:6.3f} {s['inside_min']:6d} "
+                     f"{s['inside_min_too_close']:9d} {s['inside_min_sent_valid']:10d} {s['farther_2pct']:10d} "
+                     f"{fmt_pct(s['median_abs_err']):>9s} {fmt_pct(s['worst_err']):>8s} {s['no_measurement']:7d} {s['too_close_in_range']:6d} "
+                     f"{s['exact_farther_2pct']:8d}")
+    lines.append("inside: truth nearer than the minimum range; too close / sent valid: of those; farther>2%: valid "
+                 "distance > 1.02 x truth (all frames); median/worst: valid distances in range; no meas: in range;\n"
+                 "close!: in range but sent as too close (safe, not the truth); "
+                 "exact>2%: in range, the same ranging on the exact disparity farther than truth by > 2% (the ranging's own)")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help=f"distances {QUICK_DISTANCES}, seeds 0-1")
+    ap.add_argument("--min-m", type=float, default=0.05)
+    ap.add_argument("--max-m", type=float, default=None, help="default: the flight file's far working distance")
+    ap.add_argument("--step-m", type=float, default=0.01)
+    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    ap.add_argument("--params", nargs="+", default=["baseline", "flight"], choices=("baseline", "flight"))
+    ap.add_argument("--no-cache", action="store_true")
+    ap.add_argument("--json", action="store_true", help="print rows and summary as JSON instead of the table")
+    ap.add_argument("--per-distance", action="store_true", help="also print one line per distance")
+    args = ap.parse_args(argv)
+    max_m = args.max_m if args.max_m is not None else flight_max_range_m()
+    dists = list(QUICK_DISTANCES) if args.quick else distances(args.min_m, max_m, args.step_m)
+    seeds = list(range(2 if args.quick else args.seeds))
+    rows = sweep(dists, seeds, args.variants, args.params, cache=not args.no_cache, progress=not args.json)
+    summary = summarize(rows)
+    if args.json:
+        print(json.dumps({"summary": summary, "rows": rows}, indent=1))
+        return
+    print(machine_line())
+    print(f"near sweep: {len(dists)} distances {dists[0]:.2f}..{dists[-1]:.2f} m, seeds {seeds}, variants "
+          f"{args.variants}, 1280x720 f=700 px B=0.063 m")
+    print(format_table(summary))
+    if args.per_distance:
+        for r in rows:
+            print(f"  {r['params']:8s} {r['variant']:6s} s{r['seed']} d={r['distance_m']:.2f} truth "
+                  f"{r['truth_m']:.3f} sent {r['reported_m']} too_close {r['too_close']} q {r['quality']} "
+                  f"err {fmt_pct(r['err'])}")
+
+
+if __name__ == "__main__":
+    main()

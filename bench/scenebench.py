@@ -1,0 +1,122 @@
+"""Shared by the scene benchmarks (near_sweep, leafy_suite, real_ranging): parameter sets,
+cached synthetic frames, and one frame measured as the daemon does and put on the wire.
+
+A frame goes through the real ``DisparityPipeline``, the daemon's ``Ranger`` and
+``mavlink_out.distance_report``: the distance judged is what DISTANCE_SENSOR would carry
+when its condition is "measuring" (``current_distance`` in cm); "too close" is that
+report's condition (the wire's: a reading at or inside the minimum range, or an
+estimate the ranging marks ``too_close``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.core.disparity.result import DisparityResult
+from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, load_params, read_provenance
+from uav_depth.daemon.mavlink_out import TOO_CLOSE, distance_report
+from uav_depth.daemon.ranging import Estimate, Ranger, RangingConfig
+from uav_depth.sim.scene import Scene, SceneConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+FLIGHT_FILE = ROOT / "deploy" / "params-flight.yaml"
+CACHE_DIR = Path(os.environ.get("UAV_DEPTH_SCENE_CACHE", "/tmp/uav-depth-scene-cache"))
+
+
+def param_sets(names=("baseline", "flight")) -> dict[str, StereoParams]:
+    """The manual baseline (core.params DEFAULT_PARAMS) and deploy/params-flight.yaml."""
+    sets = {"baseline": lambda: DEFAULT_PARAMS, "flight": lambda: load_params(FLIGHT_FILE)}
+    return {n: sets[n]() for n in names}
+
+
+def flight_max_range_m() -> float:
+    """The far end of the flight file's working distance (provenance), 3.0 m today."""
+    prov = read_provenance(FLIGHT_FILE)
+    wd = prov.get("working_distance_m") or [0.3, 3.0]
+    return float(wd[1])
+
+
+@dataclass(frozen=True)
+class Rendered:
+    left: np.ndarray
+    right: np.ndarray
+    truth_m: float          # nearest significant object in the ranging region (sim/truth.py)
+    nearest_any_m: float    # nearest surface of anything there, needles included
+    target_m: float         # nearest surface of the target branch there
+    disparity: np.ndarray   # exact left disparity, px (0 on the sky)
+
+
+def render_cached(cfg: SceneConfig, cache: bool = True) -> Rendered:
+    """Render ``cfg`` at the identity pose (noise seeded by its seed), or read it back from the cache.
+
+    The cache key is the config itself (every key), so a changed scene is a miss.
+    """
+    key = hashlib.sha1(json.dumps(cfg.to_dict(), sort_keys=True).encode()).hexdigest()[:20]
+    path = CACHE_DIR / f"{key}.npz"
+    if cache and path.exists():
+        z = np.load(path)
+        if "disp" in z.files:
+            return Rendered(z["left"], z["right"], float(z["truth"]), float(z["any"]), float(z["target"]), z["disp"])
+    frame = Scene(cfg).render(rng=np.random.default_rng([cfg.seed, 0]))
+    roi = cfg.center_roi
+    t = frame.truth(roi)
+    r = Rendered(frame.left, frame.right, t.significant_m, t.nearest_any_m, frame.nearest_branch_distance(roi),
+                 frame.disparity)
+    if cache:
+        CACHE_DIR.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
+        np.savez(tmp, left=r.left, right=r.right, truth=r.truth_m, any=r.nearest_any_m, target=r.target_m,
+                 disp=r.disparity)
+        os.replace(tmp, path)
+    return r
+
+
+class Measurer:
+    """One parameter set's pipeline and ranging for one calibration; ``measure`` a pair."""
+
+    def __init__(self, params: StereoParams, cfg: SceneConfig, ranging: RangingConfig | None = None):
+        self.params = params
+        self.pipe = DisparityPipeline(params)
+        self.ranger = Ranger(ranging or RangingConfig(), cfg.calibration, cfg.center_roi, params)
+
+    @property
+    def min_range_m(self) -> float:
+        return self.ranger.limits.min_distance_m
+
+    def measure_exact(self, disparity: np.ndarray) -> float | None:
+        """The same ranging on the exact disparity (no matcher): the ranging's own error, m."""
+        d = np.where(disparity > 0, disparity, np.nan).astype(np.float32)
+        return self.ranger.measure(DisparityResult(d, d, None)).distance_m
+
+    def measure(self, left: np.ndarray, right: np.ndarray) -> dict[str, Any]:
+        """What the wire would say for this pair: reported_m (None: no measurement), too_close, quality, ms."""
+        t0 = time.perf_counter()
+        result = self.pipe.run(left, right)
+        m = self.ranger.measure(result)
+        ms = (time.perf_counter() - t0) * 1e3
+        now = time.monotonic()
+        est = Estimate(m, self.ranger.limits, now, now, 0, "bench", too_close=m.too_close)   # as the service does
+        rep = distance_report(est, self.ranger.limits, now, 1.0, now)
+        return {"reported_m": rep.current_distance / 100.0 if rep.valid else None,
+                "ranged_m": m.distance_m, "too_close": rep.condition == TOO_CLOSE, "condition": rep.condition,
+                "quality": rep.signal_quality, "ms": ms, "reason": m.reason}
+
+
+def rel_err(reported: float | None, truth: float) -> float | None:
+    if reported is None or not math.isfinite(truth):
+        return None
+    return (reported - truth) / truth
+
+
+def fmt_pct(x: float | None) -> str:
+    return "-" if x is None or not math.isfinite(x) else f"{100 * x:+.2f}%"

@@ -1,0 +1,172 @@
+"""The disparity stage: OpenCV SGBM, a right matcher, a left-right confidence and (optionally) WLS.
+
+This is the one disparity path of the project: the daemon flies it and the tuner
+scores it. Build :class:`DisparityPipeline` from validated :class:`StereoParams`;
+``run`` maps a rectified pair to a :class:`DisparityResult` of (H, W) float32 maps
+at the input's resolution. The modules follow the stages, each a small function
+of frozen inputs:
+
+* :mod:`.window`: which crop of the input answers ``compute.roi`` (the full
+  frame is a window like any other) and at which matched size;
+* :mod:`.prepare`: check the pair, crop, grey (``compute.grey``), resize
+  (``compute.scale``);
+* :mod:`.match`: the left SGBM and, when ``wls.enabled``, the right one;
+* :mod:`.confidence`: the left-right confidence (OpenCV's WLS definition);
+* refine: OpenCV's WLS smoothing at the input or matched resolution
+  (``compute.wls_at``), only when the pipeline is built with ``refine=True``
+  (the daemon ranges on ``measured`` + ``confidence`` and builds it without);
+* assemble (here): paste the region into full-size maps, disparities in input px.
+
+Outside the region disparities are NaN and confidence is 0. With the default
+parameters the pipeline computes exactly OpenCV's sample (full frame, full
+resolution, colour as given).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import cv2
+import numpy as np
+
+from uav_depth.core.disparity.confidence import lr_confidence
+from uav_depth.core.disparity.near import NearCheck, max_disparity_px, near_params
+from uav_depth.core.disparity.match import Matchers, build_matchers, match_left, match_right, to_float
+from uav_depth.core.disparity.prepare import Prepared, check_pair, prepare
+from uav_depth.core.disparity.result import DisparityResult, Laps
+from uav_depth.core.disparity.window import Window, search_span, window
+from uav_depth.core.errors import ParameterWarning
+from uav_depth.core.params import OPENCV_COST_MAX, StereoParams
+
+
+class DisparityPipeline:
+    """The stages built once from validated parameters.
+
+    ``refine``: run WLS's smoothing for ``DisparityResult.disparity`` (when
+    ``wls.enabled``); without it ``disparity`` holds the measured values and the
+    run skips the smoothing's cost. ``measured`` and ``confidence`` do not depend
+    on it. Not thread-safe (OpenCV matcher objects keep state): build one per
+    thread or process. Building is cheap (well under a millisecond).
+    """
+
+    def __init__(self, params: StereoParams, refine: bool = True, near: bool = False):
+        self.params = params
+        self.refine = refine and params.wls.enabled
+        self._near = DisparityPipeline(near_params(params), refine=False) if near else None
+        self.matchers: Matchers = build_matchers(params)
+        m = self.matchers
+        self.left_matcher, self.right_matcher, self.wls = m.left, m.right, m.wls
+        sg = params.sgbm
+        self._overflow = None
+        if sg.overflows:
+            self._overflow = (f"sgbm.p1={sg.p1}/sgbm.p2={sg.p2} exceed OpenCV's 16-bit cost limit "
+                              f"{OPENCV_COST_MAX}: no disparity computed")
+
+    def run(self, left: np.ndarray, right: np.ndarray) -> DisparityResult:
+        """Disparity of a rectified pair (uint8 grey or BGR colour, same shape).
+
+        Every map is (H, W) at the input's resolution whatever ``compute.*`` says;
+        outside ``compute.roi`` disparities are NaN and confidence is 0. A window
+        too narrow for the disparity search gives all-NaN maps (nothing matched).
+        """
+        res, _, _ = self._run(left, right)
+        if self._near is None:
+            return res
+        laps = Laps()
+        near, _, _ = self._near._run(left, right)
+        check = NearCheck(near.measured, max_disparity_px(self.params))
+        laps.lap("near")
+        return DisparityResult(res.disparity, res.measured, res.confidence, res.warning,
+                               {**res.timings_ms, **laps.ms}, near=check, near_confidence=near.confidence)
+
+    def _run(self, left: np.ndarray, right: np.ndarray) -> tuple[DisparityResult, Window | None, Prepared | None]:
+        """One pass of the stages; also the window and prepared images (None when nothing was matched)."""
+        laps = Laps()
+        check_pair(left, right)
+        h, w = left.shape[:2]
+        if self._overflow is not None:
+            warnings.warn(self._overflow, ParameterWarning, stacklevel=2)
+            empty = np.full((h, w), np.nan, np.float32)
+            return DisparityResult(empty, empty.copy(), None, self._overflow), None, None
+        win = window(self.params, w, h)
+        conf_full = None if self.right_matcher is None else np.zeros((h, w), np.float32)
+        measured = np.full((h, w), np.nan, np.float32)
+        if win.matched[0] <= search_span(self.params):    # narrower than the search: nothing can be matched
+            laps.lap("prepare")
+            return DisparityResult(np.full((h, w), np.nan, np.float32), measured, conf_full,
+                                   timings_ms=laps.ms), None, None
+        prep = prepare(self.params.compute, win, left, right)
+        laps.lap("prepare")
+        left16 = match_left(self.matchers, prep.left_m, prep.right_m)
+        laps.lap("match_left")
+        measured[win.outer()] = self._measured(win, left16)[win.inner()]
+        if self.right_matcher is None:
+            laps.lap("assemble")
+            return DisparityResult(measured, measured, None, timings_ms=laps.ms), win, prep
+        right16 = match_right(self.matchers, prep.left_m, prep.right_m)
+        laps.lap("match_right")
+        conf = self._confidence(win, left16, right16)
+        conf_full[win.outer()] = np.clip(conf[win.inner()] * np.float32(1.0 / 255.0), 0.0, 1.0)
+        laps.lap("confidence")
+        if not self.refine:
+            laps.lap("assemble")
+            return DisparityResult(measured, measured, conf_full, timings_ms=laps.ms), win, prep
+        filt = self._refine(win, prep, left16, right16)
+        laps.lap("wls")
+        disparity = np.full((h, w), np.nan, np.float32)
+        disparity[win.outer()] = filt[win.inner()]
+        laps.lap("assemble")
+        return DisparityResult(disparity, measured, conf_full, timings_ms=laps.ms), win, prep
+
+    def _measured(self, win: Window, left16: np.ndarray) -> np.ndarray:
+        """The left matcher's disparities over the crop, input px."""
+        meas = to_float(left16, self.params.sgbm.min_disparity, win.ratio)
+        if win.resized:
+            # Nearest, not linear: a measured value is one pixel's match, never a blend with NaN.
+            meas = cv2.resize(meas, win.crop_size, interpolation=cv2.INTER_NEAREST)
+        return meas
+
+    def _wls_at_matched(self, win: Window) -> bool:
+        return self.params.compute.wls_at == "matched" or not win.resized
+
+    def _confidence(self, win: Window, left16: np.ndarray, right16: np.ndarray) -> np.ndarray:
+        """0..255 confidence over the crop, as WLS computes it for the guide it would be given."""
+        # WLS given the full-resolution guide scales its threshold and roll-off by the width ratio.
+        rf = 1.0 if self._wls_at_matched(win) else float(np.float32(win.matched[0]) / np.float32(win.crop_size[0]))
+        conf = lr_confidence(left16, right16, self.params.sgbm, rf)
+        if win.resized:
+            conf = cv2.resize(conf, win.crop_size, interpolation=cv2.INTER_LINEAR)
+        return conf
+
+    def _refine(self, win: Window, prep: Prepared, left16: np.ndarray, right16: np.ndarray) -> np.ndarray:
+        """WLS-smoothed disparity over the crop, input px, NaN where invalid."""
+        min_d = self.params.sgbm.min_disparity
+        assert self.wls is not None
+        if win.resized and self.params.compute.wls_at == "matched":
+            # WLS at the matched resolution (a quarter of the pixels at scale 0.5), then
+            # resized: linear for the smooth filtered map (a NaN neighbour stays NaN).
+            filtered16 = self.wls.filter(left16, prep.left_m, disparity_map_right=right16)
+            return cv2.resize(to_float(filtered16, min_d, win.ratio), win.crop_size, interpolation=cv2.INTER_LINEAR)
+        # Given the full-resolution guide, OpenCV's WLS upsamples the low-resolution
+        # disparity itself (scaling values by the width ratio) and filters at full
+        # resolution, so edges follow the real image.
+        filtered16 = self.wls.filter(left16, prep.left, disparity_map_right=right16)
+        filt = filtered16.astype(np.float32) * np.float32(1.0 / 16.0)
+        # Below the smallest searched disparity (in input px) is invalid. OpenCV fills
+        # what lies outside its valid band with 16*(min_disparity-1), unscaled: with a
+        # negative min_disparity and upscaling that is not below the threshold.
+        filt[(filtered16 < min_d * 16 * win.ratio) | (filtered16 == 16 * (min_d - 1))] = np.nan
+        return filt
+
+    def compute(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+        """(H, W) float32 disparity in px of the left image, NaN where invalid."""
+        return self.run(left, right).disparity
+
+
+def flight_pipeline(params: StereoParams) -> DisparityPipeline:
+    """What flies: the measured map, its confidence and the near check; no WLS smoothing (ranging
+    does not use it)."""
+    return DisparityPipeline(params, refine=False, near=True)
+
+
+__all__ = ["DisparityPipeline", "DisparityResult", "NearCheck", "check_pair", "flight_pipeline"]

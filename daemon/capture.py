@@ -1,0 +1,118 @@
+"""The capture thread: the source into a one-slot mailbox, and reconnecting when the camera is lost.
+
+The newest frame wins: older ones are dropped (counted), never queued, so the
+stereo stage always works on the latest view. Camera loss (a SourceError, any
+driver error, or no frame for ``service.frame_timeout_s``): close, reopen with
+exponential back-off between ``reconnect_min_s`` and ``reconnect_max_s``. What the
+loss means for the link and the state is the caller's (``on_lost`` / ``on_back``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+import time
+from typing import Callable, ContextManager
+
+from uav_depth.core.errors import SourceError
+from uav_depth.daemon.config import ServiceConfig
+from uav_depth.daemon.sources import EndOfStream, Frame, FrameSource
+
+log = logging.getLogger("uav_depth.service")
+
+
+class Mailbox:
+    """One slot: ``put`` replaces what is there (counting the drop), ``get`` waits for something new."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._item: Frame | None = None
+        self.dropped = 0
+
+    def put(self, item: Frame) -> None:
+        with self._cond:
+            if self._item is not None:
+                self.dropped += 1
+            self._item = item
+            self._cond.notify()
+
+    def get(self, timeout_s: float) -> Frame | None:
+        with self._cond:
+            if self._item is None:
+                self._cond.wait(timeout_s)
+            item, self._item = self._item, None
+            return item
+
+
+class Capture:
+    """The body of the ``capture`` thread (:meth:`run`) until ``stop`` is set or the source ends.
+
+    ``in_source``: a context manager marking a read/open (the stall check);
+    ``on_lost(why)`` / ``on_back()``: camera state changes; ``on_end(why)``: a
+    finite source delivered its last frame.
+    """
+
+    def __init__(self, source: FrameSource, config: ServiceConfig, mailbox: Mailbox, stop: threading.Event, *,
+                 on_lost: Callable[[str], None], on_back: Callable[[], None], on_end: Callable[[str], None],
+                 in_source: Callable[[], ContextManager[None]] = contextlib.nullcontext):
+        self.source = source
+        self.config = config
+        self.mailbox = mailbox
+        self.stop = stop
+        self.on_lost, self.on_back, self.on_end = on_lost, on_back, on_end
+        self.in_source = in_source
+        self.frames_in = 0
+
+    def reconnect(self) -> None:
+        svc = self.config
+        delay = svc.reconnect_min_s
+        try:
+            self.source.close()
+        except Exception:   # a vanished device may fail to close; we reopen anyway
+            log.debug("source close failed", exc_info=True)
+        while not self.stop.is_set():
+            if self.stop.wait(delay):
+                return
+            try:
+                with self.in_source():
+                    self.source.open()
+                return
+            except SourceError as exc:
+                log.info("camera still missing (%s); next try in %.1f s", exc, min(delay * 2, svc.reconnect_max_s))
+            except Exception as exc:   # a driver error while reopening is the same story
+                log.info("camera reopen failed (%s: %s)", type(exc).__name__, exc)
+            delay = min(delay * 2, svc.reconnect_max_s)
+
+    def _lost(self, why: str) -> float:
+        self.on_lost(why)
+        self.reconnect()
+        return time.monotonic()
+
+    def run(self) -> None:
+        svc = self.config
+        last = time.monotonic()
+        while not self.stop.is_set():
+            try:
+                with self.in_source():
+                    frame = self.source.read(min(0.2, svc.frame_timeout_s))
+            except EndOfStream as exc:
+                log.info("%s", exc)
+                self.on_end(str(exc))
+                return
+            except SourceError as exc:
+                last = self._lost(str(exc))
+                continue
+            except Exception as exc:   # an unexpected driver error is a lost camera too
+                log.exception("source read failed")
+                last = self._lost(f"{type(exc).__name__}: {exc}")
+                continue
+            now = time.monotonic()
+            if frame is None:
+                if now - last > svc.frame_timeout_s:
+                    last = self._lost(f"no frame for {now - last:.1f} s")
+                continue
+            last = now
+            self.frames_in += 1
+            self.on_back()
+            self.mailbox.put(frame)

@@ -1,0 +1,386 @@
+"""End to end against the real ArduCopter SITL: the daemon's readings reach the autopilot and avoidance acts on them.
+
+Runs only where the SITL binary is given: ``UAV_DEPTH_ARDUCOPTER=/path/to/arducopter`` (built from
+ArduPilot's public sources, ``./waf configure --board sitl && ./waf copter``; docs/sitl.md). Its
+default parameters are taken from ``Tools/autotest/default_params/copter.parm`` beside the build, or
+from ``UAV_DEPTH_ARDUCOPTER_DEFAULTS``. Without the binary the test is skipped with that reason: the
+same behaviours (no pose no distance, the readings track the geometry, stale pose -> no distance)
+are covered against a pymavlink autopilot in tests/cli/test_sitl_loop.py and test_sitl_blind.py,
+which CI runs.
+
+The flight, in the order the autopilot needs (docs/sitl.md): start SITL; set RNGFND1_TYPE=10 /
+PRX1_TYPE=2 and the avoidance settings; reboot; set RNGFND1_ORIENT=0, RNGFND1_MIN/MAX (m); start
+``uav-depth sitl`` (before arming: arming fails without data); arm in Guided; take off to 3 m; fly
+north at the branch (its nearest surface at N ``TREE_N``) at each speed; record the closest
+approach (from LOCAL_POSITION_NED: TREE_N - north) and the autopilot's own DISTANCE_SENSOR against
+that geometry. :class:`Sitl` and :func:`approach` are also what bench/sitl_ardupilot.py flies.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import signal
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+
+from uav_depth.daemon.mavlink_enums import mavutil
+
+REPO = Path(__file__).resolve().parents[2]
+EXAMPLE = REPO / "deploy/examples/sitl.yaml"
+ENV_BINARY, ENV_DEFAULTS = "UAV_DEPTH_ARDUCOPTER", "UAV_DEPTH_ARDUCOPTER_DEFAULTS"
+
+ALT_M = 3.0
+TREE_N = 5.5 + 2.0              # the branch's nearest surface, N (m); approaches start at N 2.0, 5.5 m from it
+START_N = 2.0
+TREE_NED = (TREE_N, 0.0, -ALT_M)
+GUIDED, LOITER, LAND = 4, 5, 9
+#: Avoidance on, proximity from the daemon's DISTANCE_SENSOR (PRX1_TYPE=2) or the rangefinder (RNGFND1_TYPE=10
+#: feeding PRX1_TYPE=4). AVOID_ENABLE=2: proximity sensors only (no fence).
+AVOID = {"AVOID_ENABLE": 2, "AVOID_MARGIN": 1.0, "AVOID_BEHAVE": 1, "AVOID_ACCEL_MAX": 3.0}
+SENSORS = {"prx": {"PRX1_TYPE": 2}, "rf": {"RNGFND1_TYPE": 10, "PRX1_TYPE": 4}}
+#: Exist only after the reboot that follows RNGFND1_TYPE.
+RF_AFTER_REBOOT = {"RNGFND1_ORIENT": 0, "RNGFND1_MIN": 0.3, "RNGFND1_MAX": 7.0}
+
+
+def binary() -> str | None:
+    path = os.environ.get(ENV_BINARY)
+    return path if path and os.access(path, os.X_OK) else None
+
+
+def defaults_for(arducopter: str) -> str:
+    given = os.environ.get(ENV_DEFAULTS)
+    if given:
+        return given
+    # .../ardupilot/build/sitl/bin/arducopter -> .../ardupilot/Tools/autotest/default_params/copter.parm
+    return str(Path(arducopter).resolve().parents[3] / "Tools/autotest/default_params/copter.parm")
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@dataclass
+class Record:
+    """What the ground-station link saw: (t, value) series, monotonic s."""
+
+    north: list = field(default_factory=list)            # (t, N, E, D, vN)
+    readings: list = field(default_factory=list)         # (t, id, cm) of the autopilot's own DISTANCE_SENSOR
+    texts: list = field(default_factory=list)            # (t, text)
+    armed: bool = False
+    mode: int = -1
+
+
+class Sitl:
+    """One ArduCopter SITL process and a pymavlink ground-station link to it (TCP 5760).
+
+    The companion (the daemon) is given SITL's SERIAL1 (``--serial1 udpclient:127.0.0.1:PORT``).
+    A thread reads the link and keeps :class:`Record`; every method waits with a deadline.
+    """
+
+    def __init__(self, arducopter: str, workdir: Path, companion_port: int, log=print):
+        self.arducopter = arducopter
+        self.workdir = Path(workdir)
+        self.port = companion_port
+        self.log = log
+        self.proc: subprocess.Popen | None = None
+        self.conn = None
+        self.rec = Record()
+        self.params: dict[str, float] = {}
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._reader: threading.Thread | None = None
+
+    # -- process and link ---------------------------------------------------------------------
+    def start(self) -> "Sitl":
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        cmd = [self.arducopter, "--model", "+", "--speedup", "1", "--defaults", defaults_for(self.arducopter),
+               "-I0", "--serial1", f"udpclient:127.0.0.1:{self.port}"]
+        self.log("$ " + " ".join(cmd))
+        self.proc = subprocess.Popen(cmd, cwd=self.workdir, stdout=open(self.workdir / "sitl.out", "ab"),
+                                     stderr=subprocess.STDOUT, start_new_session=True)
+        self.connect()
+        return self
+
+    def connect(self, timeout_s: float = 60.0) -> None:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                self.conn = mavutil().mavlink_connection("tcp:127.0.0.1:5760", source_system=255,
+                                                         source_component=190, autoreconnect=False)
+                break
+            except OSError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.5)
+        self.conn.wait_heartbeat(timeout=30)
+        self._stop.clear()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+        for msg_id, hz in ((32, 20), (132, 20), (1, 2), (193, 2)):   # LOCAL_POSITION_NED, DISTANCE_SENSOR, ...
+            self.command(511, msg_id, 1e6 / hz)
+
+    def _read(self) -> None:
+        while not self._stop.is_set():
+            try:
+                m = self.conn.recv_match(blocking=True, timeout=0.1)
+            except (OSError, ValueError):
+                return
+            if m is None:
+                continue
+            t = time.monotonic()
+            kind = m.get_type()
+            if kind == "LOCAL_POSITION_NED":
+                self.rec.north.append((t, m.x, m.y, m.z, m.vx))
+            elif kind == "DISTANCE_SENSOR" and m.get_srcComponent() == 1:
+                self.rec.readings.append((t, m.id, m.current_distance))
+            elif kind == "STATUSTEXT":
+                self.rec.texts.append((t, m.text))
+                self.log(f"  AP: {m.text}")
+            elif kind == "HEARTBEAT" and m.get_srcComponent() == 1:
+                self.rec.armed = bool(m.base_mode & 128)
+                self.rec.mode = m.custom_mode
+            elif kind == "PARAM_VALUE":
+                self.params[m.param_id] = m.param_value
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._reader is not None:
+            self._reader.join(2)
+        if self.conn is not None:
+            self.conn.close()
+        if self.proc is not None and self.proc.poll() is None:
+            os.killpg(self.proc.pid, signal.SIGTERM)
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait(5)
+
+    # -- commands -----------------------------------------------------------------------------
+    def command(self, cmd: int, *params: float) -> None:
+        p = list(params) + [0.0] * (7 - len(params))
+        with self._lock:
+            self.conn.mav.command_long_send(1, 1, cmd, 0, *p)
+
+    def set_param(self, name: str, value: float, timeout_s: float = 10.0) -> None:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            with self._lock:
+                self.conn.mav.param_set_send(1, 1, name.encode(), float(value), 9)
+            t = time.monotonic() + 1.0
+            while time.monotonic() < t:
+                if name in self.params and abs(self.params[name] - float(value)) < 1e-4:
+                    self.log(f"  param {name} = {value:g}")
+                    return
+                time.sleep(0.05)
+        raise AssertionError(f"SITL did not take {name}={value} (it reports {self.params.get(name)})")
+
+    def has_param(self, name: str, timeout_s: float = 5.0) -> bool:
+        self.params.pop(name, None)
+        with self._lock:
+            self.conn.mav.param_request_read_send(1, 1, name.encode(), -1)
+        return self.wait(lambda: name in self.params, timeout_s)
+
+    def reboot(self) -> None:
+        self.log("  reboot")
+        self.command(246, 1)
+        time.sleep(1.0)
+        self._stop.set()
+        if self._reader is not None:
+            self._reader.join(2)
+        self.conn.close()
+        time.sleep(2.0)
+        self.connect()
+
+    def set_mode(self, mode: int, timeout_s: float = 10.0) -> None:
+        deadline = time.monotonic() + timeout_s
+        while self.rec.mode != mode and time.monotonic() < deadline:
+            self.command(176, 1, mode)
+            self.wait(lambda: self.rec.mode == mode, 1.0)
+        assert self.rec.mode == mode, f"mode {mode} refused (now {self.rec.mode})"
+
+    def arm(self, timeout_s: float = 90.0) -> float:
+        """Arm (retrying while pre-arm checks fail); returns seconds it took."""
+        t0 = time.monotonic()
+        while not self.rec.armed and time.monotonic() - t0 < timeout_s:
+            self.command(400, 1)
+            self.wait(lambda: self.rec.armed, 2.0)
+        assert self.rec.armed, "arming failed: " + " | ".join(t for _, t in self.rec.texts[-5:])
+        return time.monotonic() - t0
+
+    def takeoff(self, alt_m: float, timeout_s: float = 40.0) -> None:
+        self.command(22, 0, 0, 0, 0, 0, 0, alt_m)
+        assert self.wait(lambda: self.position() is not None and -self.position()[2] > alt_m - 0.15, timeout_s), \
+            "take-off did not reach %.1f m" % alt_m
+
+    def wait(self, pred, timeout_s: float) -> bool:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if pred():
+                return True
+            time.sleep(0.05)
+        return bool(pred())
+
+    def position(self):
+        return self.rec.north[-1][1:4] if self.rec.north else None
+
+    def velocity_n(self) -> float:
+        return self.rec.north[-1][4] if self.rec.north else 0.0
+
+    def target_position(self, n: float, e: float, d: float, yaw: float = 0.0) -> None:
+        with self._lock:
+            self.conn.mav.set_position_target_local_ned_send(0, 1, 1, 1, 2552, n, e, d, 0, 0, 0, 0, 0, 0, yaw, 0)
+
+    def target_velocity(self, vn: float, ve: float = 0.0, vd: float = 0.0, yaw: float = 0.0) -> None:
+        with self._lock:
+            self.conn.mav.set_position_target_local_ned_send(0, 1, 1, 1, 2503, 0, 0, 0, vn, ve, vd, 0, 0, 0, yaw, 0)
+
+    def rc(self, pitch: int = 1500, throttle: int = 1500) -> None:
+        with self._lock:
+            self.conn.mav.rc_channels_override_send(1, 1, 1500, pitch, throttle, 1500, 0, 0, 0, 0)
+
+    def goto(self, n: float, e: float = 0.0, d: float = -ALT_M, timeout_s: float = 40.0) -> None:
+        """Guided position hold at (n, e, d), heading north; returns once within 0.1 m and still."""
+        self.set_mode(GUIDED)
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            self.target_position(n, e, d)
+            p = self.position()
+            if p is not None and math.dist(p, (n, e, d)) < 0.1 and abs(self.velocity_n()) < 0.05:
+                return
+            time.sleep(0.2)
+        raise AssertionError(f"did not reach N {n} E {e} D {d} (at {self.position()})")
+
+
+@dataclass
+class Approach:
+    mode: str
+    speed: float
+    closest_m: float                 # closest approach of the camera to the branch surface (negative: past it)
+    reading_lag_m: float | None      # median (autopilot's reading - geometry) while flying at speed
+    readings: int
+    stopped: bool
+
+
+def approach(sitl: Sitl, mode: str, speed: float, duration_s: float = 25.0) -> Approach:
+    """Fly north at the branch from START_N at ``speed`` m/s (Guided velocity or Loiter stick), then back."""
+    sitl.goto(START_N)
+    t0 = time.monotonic()
+    if mode == "Loiter":
+        sitl.set_param("LOIT_SPEED", speed * 100.0)
+        for _ in range(5):
+            sitl.rc(1500, 1500)
+            time.sleep(0.1)
+        sitl.set_mode(LOITER)
+    while time.monotonic() - t0 < duration_s:
+        if mode == "Guided":
+            sitl.target_velocity(speed)
+        else:
+            sitl.rc(1100, 1500)          # full forward stick: LOIT_SPEED
+        time.sleep(0.1)
+        p = sitl.position()
+        if p is not None and p[0] > TREE_N + 1.0:
+            break                        # flew through the branch
+        moving = [v for t, *_, v in sitl.rec.north if t > time.monotonic() - 2.0]
+        if time.monotonic() - t0 > 6.0 and moving and max(abs(v) for v in moving) < 0.03:
+            break                        # stopped for 2 s
+    t1 = time.monotonic()
+    if mode == "Loiter":
+        for _ in range(5):
+            sitl.rc(1500, 1500)
+            time.sleep(0.1)
+    sitl.goto(START_N)
+    if mode == "Loiter":
+        sitl.rc(0, 0)                    # release the override
+    track = [(t, n, vn) for t, n, e, d, vn in sitl.rec.north if t0 <= t <= t1]
+    closest = min(TREE_N - n for _, n, _ in track)
+    stopped = track[-1][2] < 0.05 if track else False
+    # The autopilot's reading against the geometry at the same instant, while at speed.
+    lag = []
+    readings = [(t, cm) for t, rid, cm in sitl.rec.readings if t0 <= t <= t1]
+    for t, cm in readings:
+        near = min(track, key=lambda r: abs(r[0] - t))
+        if abs(near[0] - t) < 0.06 and near[2] > 0.9 * speed and cm / 100.0 < 7.0:
+            lag.append(cm / 100.0 - (TREE_N - near[1]))
+    return Approach(mode, speed, closest, statistics.median(lag) if lag else None, len(readings), stopped)
+
+
+def start_daemon(port: int, truth: Path, log_path: Path, config: Path = EXAMPLE) -> subprocess.Popen:
+    cmd = [sys.executable, "-m", "uav_depth.cli.main", "sitl", "--config", str(config),
+           "--mavlink-url", f"udpin:127.0.0.1:{port}", "--tree-ned", *map(str, TREE_NED),
+           "--approach-yaw-deg", "0", "--truth-log", str(truth)]
+    return subprocess.Popen(cmd, stdout=open(log_path, "w"), stderr=subprocess.STDOUT, start_new_session=True,
+                            env=dict(os.environ, PYTHONUNBUFFERED="1"))
+
+
+def stop(proc: subprocess.Popen | None) -> None:
+    if proc is not None and proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(20)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(5)
+
+
+def prepare(sitl: Sitl, sensor: str, avoid: dict = AVOID) -> None:
+    """Parameters in the order the autopilot needs: types, reboot, then what exists only after it."""
+    for name, value in {**SENSORS[sensor], **avoid}.items():
+        sitl.set_param(name, value)
+    sitl.reboot()
+    if "RNGFND1_TYPE" in SENSORS[sensor]:
+        assert sitl.has_param("RNGFND1_ORIENT"), "RNGFND1_ORIENT does not exist after RNGFND1_TYPE=10 and a reboot"
+        for name, value in RF_AFTER_REBOOT.items():
+            sitl.set_param(name, value)
+
+
+needs_sitl = pytest.mark.skipif(binary() is None, reason=f"needs the ArduCopter SITL binary: set {ENV_BINARY}="
+                                "/path/to/arducopter (docs/sitl.md builds it); the pymavlink-peer tests "
+                                "(test_sitl_loop.py, test_sitl_blind.py) cover the same behaviours in CI")
+
+
+@needs_sitl
+@pytest.mark.timeout(900)
+def test_avoidance_stops_the_approach_on_the_daemons_readings(tmp_path):
+    port = free_udp_port()
+    sitl = Sitl(binary(), tmp_path / "sitl", port).start()
+    daemon = None
+    try:
+        prepare(sitl, "prx")
+        # No daemon yet: arming must fail for want of proximity data.
+        sitl.set_mode(GUIDED)
+        assert sitl.wait(lambda: sitl.rec.north, 90), "no LOCAL_POSITION_NED within 90 s of boot"
+        sitl.command(400, 1)
+        assert sitl.wait(lambda: any("PRX1: No Data" in t for _, t in sitl.rec.texts), 10), \
+            [t for _, t in sitl.rec.texts[-10:]]
+        assert not sitl.rec.armed
+        daemon = start_daemon(port, tmp_path / "truth.csv", tmp_path / "daemon.log")
+        sitl.arm()
+        sitl.takeoff(ALT_M)
+        results = [approach(sitl, "Guided", v) for v in (0.5, 1.0, 2.0)]
+    finally:
+        stop(daemon)
+        sitl.close()
+    log = (tmp_path / "daemon.log").read_text()
+    for r in results:
+        print(f"\n{r}")
+    assert "scripted" not in log
+    # The daemon's readings reached the autopilot and track the geometry (the proximity id 10 stream).
+    assert all(r.readings > 20 for r in results), results
+    slow = [r for r in results if r.speed <= 1.0]
+    assert all(r.reading_lag_m is not None and abs(r.reading_lag_m) < 0.25 for r in slow), results
+    # Avoidance stopped the slow approaches short of the surface, on those readings alone.
+    assert all(r.stopped and r.closest_m >= 0.3 for r in slow), results
