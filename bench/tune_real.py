@@ -148,7 +148,7 @@ def synthetic_flight(work: Path, root: Path, population: int, generations: int) 
     base, tuned = evaluate(syn / "test", flight), evaluate(syn / "test", work / "syn-flight.yaml")
     gate = "beat" if summary["selection"]["beats_base"] else "did NOT beat"
     return [f"synthetic flight file: tuned on 4 frames ({wall:.0f} s; {gate} its base on the 2 held-out of them); "
-            f"4 other frames: branch error {base['mean']['branch']:.2f}% -> {tuned['mean']['branch']:.2f}%, "
+            f"4 other frames: branch error {base['mean']['branch_err_pct']:.2f}% -> {tuned['mean']['branch_err_pct']:.2f}%, "
             f"mae {base['mean']['mae']:.3f} -> {tuned['mean']['mae']:.3f} px"]
 
 

@@ -123,13 +123,18 @@ def _ref(fn: Callable[[np.ndarray, np.ndarray], float]) -> Callable[[FrameData, 
                                                          frame.reference, res.disparity))
 
 
-def _branch(frame: FrameData, res: DisparityResult, params: StereoParams) -> float:
-    """The daemon's own ranging stage on this result, against the frame's truth."""
+def branch_measurement(frame: FrameData, res: DisparityResult, params: StereoParams) -> tuple[float | None, float]:
+    """The daemon's own ranging stage on this result: (distance m or None, error % against the frame's truth)."""
     h, w = frame.left.shape[:2]
     cal = Calibration(focal_px=frame.focal_px, baseline_m=frame.baseline_m, width=w, height=h)
     roi = resolve_roi(frame.roi, w, h)
     m = Ranger(RangingConfig(roi=roi), cal, roi, params).measure(res)
-    return metrics.branch_error(m.distance_m, frame.branch_distance_m)
+    return m.distance_m, metrics.branch_error(m.distance_m, frame.branch_distance_m)
+
+
+def _branch(frame: FrameData, res: DisparityResult, params: StereoParams) -> float:
+    """The daemon's own ranging stage on this result, against the frame's truth."""
+    return branch_measurement(frame, res, params)[1]
 
 
 def _selfsup(frame: FrameData, res: DisparityResult, params: StereoParams) -> float:
@@ -193,20 +198,27 @@ FLOWN_FITNESS = ("flown", "flown-bad2", "branch")
 
 
 def _frame_metrics(frame: FrameData, res: DisparityResult, params: StereoParams,
-                   convention: str = "bench") -> dict[str, float]:
+                   convention: str = "bench", score_roi: tuple[float, float, float, float] | None = None
+                   ) -> dict[str, float]:
     """Every metric the frame allows (reports), in ``convention`` (metrics.CONVENTIONS).
 
     bench: the flown map (:func:`flown_map`) inside the scored box; paper: the WLS map, as the paper scores it.
+    The box: ``score_roi`` (fractions, as compute.roi) when given, so two files are compared in one box, else
+    the candidate's own. Where the frame knows the branch truth: ``branch`` (error %), ``truth_m``,
+    ``branch_m`` (the daemon's ranging, NaN when it measured nothing).
     """
     out: dict[str, float] = {}
     if frame.reference is not None:
-        box = scored_box(params, frame.reference.shape)
+        box_params = params if score_roi is None else params.replace(**{"compute.roi": tuple(score_roi)})
+        box = scored_box(box_params, frame.reference.shape)
         if convention == "bench":
             out.update(bench(frame, flown_map(res), box))
         else:
             out.update(metrics.score(*metrics.in_box(box, frame.reference, res.disparity)).as_dict())
     if frame.has_branch:
-        out["branch"] = _branch(frame, res, params)
+        distance, err = branch_measurement(frame, res, params)
+        out.update(branch=err, truth_m=float(frame.branch_distance_m),
+                   branch_m=math.nan if distance is None else float(distance))
     return out
 
 
@@ -216,7 +228,8 @@ def default_convention(fitness: str) -> str:
 
 
 def evaluate(params: StereoParams, frames: FrameSet, fitness: Fitness, full: bool = False,
-             convention: str | None = None) -> Evaluation:
+             convention: str | None = None, score_roi: tuple[float, float, float, float] | None = None
+             ) -> Evaluation:
     """Score ``params`` on ``frames``; never raises for a bad candidate (returns FAILED).
 
     ``full``: every metric the frames allow, per frame (reports); otherwise the
@@ -246,7 +259,7 @@ def evaluate(params: StereoParams, frames: FrameSet, fitness: Fitness, full: boo
                 return failed(fitness, f"{frame.key}: {fitness.name} is NaN", time.perf_counter() - t_start)
             per_frame.append(value)
             if full:
-                extras.append(_frame_metrics(frame, res, params, convention))
+                extras.append(_frame_metrics(frame, res, params, convention, score_roi))
     except Exception as exc:  # a candidate that raises is a failed trial; the run goes on
         return failed(fitness, f"{type(exc).__name__}: {exc}", time.perf_counter() - t_start)
     names = sorted(set().union(*extras)) if extras else []

@@ -1,4 +1,4 @@
-"""uav-depth evaluate LOGDIR [--params FILE] [--convention bench|paper] [--json]."""
+"""uav-depth evaluate LOGDIR [--params FILE] [--set KEY=VALUE ...] [--roi L,T,R,B] [--convention bench|paper] [--json]."""
 
 from __future__ import annotations
 
@@ -8,6 +8,12 @@ import argparse
 def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("logdir", help="a session or a directory of sessions (log layout)")
     p.add_argument("--params", help="parameter file (default: built-in manual baseline)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="change one parameter of the file (or the baseline), e.g. --set sgbm.num_disparities=64 "
+                        "(repeatable)")
+    p.add_argument("--roi", metavar="L,T,R,B",
+                   help="score inside this box, fractions of the image (as compute.roi), whatever the "
+                        "parameters match: compares two files in the same box")
     p.add_argument("--convention", choices=("bench", "paper"), default="bench",
                    help="bench (default): the map the daemon ranges on (confident measured pixels), error over "
                         "ground-truth pixels with holes filled as the KITTI devkit does, density beside it, the "
@@ -16,9 +22,44 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
 
 
+def parse_sets(items: list[str]) -> dict:
+    """``--set KEY=VALUE`` items -> {dotted key: YAML value}; ConfigError naming --set when malformed."""
+    import yaml
+
+    from uav_depth.core.errors import ConfigError
+
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or key.count(".") != 1:
+            raise ConfigError("--set", "must look like SECTION.KEY=VALUE (sgbm.num_disparities=64)", item)
+        try:
+            out[key] = yaml.safe_load(value) if value.strip() else None
+        except yaml.YAMLError:
+            out[key] = value
+    return out
+
+
+def parse_roi(text: str | None):
+    from uav_depth.core.errors import ConfigError
+
+    if text is None:
+        return None
+    try:
+        box = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        box = ()
+    if len(box) != 4 or not (0 <= box[0] < box[2] <= 1 and 0 <= box[1] < box[3] <= 1):
+        raise ConfigError("--roi", "must be four fractions L,T,R,B with 0 <= L < R <= 1 and 0 <= T < B <= 1", text)
+    return box
+
+
 def run(args: argparse.Namespace) -> int:
     import json
     import math
+
+    import numpy as np
 
     from uav_depth.core.errors import FileFormatError, UavDepthError
     from uav_depth.core.params import DEFAULT_PARAMS, load_params
@@ -31,28 +72,57 @@ def run(args: argparse.Namespace) -> int:
     from uav_depth.tuning.report import sources_text
 
     params = load_params(args.params) if args.params else DEFAULT_PARAMS
+    sets = parse_sets(args.overrides)
+    if sets:
+        params = params.replace(**sets)
+    roi = parse_roi(args.roi)
     records = list(iter_frames(args.logdir, require_reference=True))
     if not records:
         raise FileFormatError(f"{args.logdir}: no frame with a reference disparity (*_ref.npy/.pfm/.png)")
     frames = FrameSet("evaluate", tuple(load_frame(r) for r in records))
     ev = evaluate(params, frames, FITNESS["flown" if args.convention == "bench" else "mse"], full=True,
-                  convention=args.convention)
+                  convention=args.convention, score_roi=roi)
     if not ev.ok:
         raise UavDepthError(f"{args.logdir}: these parameters cannot be scored: {ev.reason}")
-    names = [n for n in (*METRIC_NAMES[args.convention], "branch") if n in ev.metrics]
-    region = "whole frame" if params.compute.whole_frame else f"compute.roi {list(params.compute.roi)}"
+    names = list(METRIC_NAMES[args.convention])
+    if roi is not None:
+        region = f"--roi {list(roi)}"
+    else:
+        region = "whole frame" if params.compute.whole_frame else f"compute.roi {list(params.compute.roi)}"
     references = summarize_references(records)
+    clean = lambda v: None if isinstance(v, float) and not math.isfinite(v) else v  # noqa: E731
+    per = []
+    for f in ev.frame_metrics:
+        row = {k: f[k] for k in ("id", *names, "ms")}
+        row.update(truth_m=f.get("truth_m"), branch_m=clean(f.get("branch_m")),
+                   branch_err_pct=f.get("branch", math.nan))
+        per.append(row)
+    errs = [r["branch_err_pct"] for r in per if math.isfinite(r["branch_err_pct"])]
+    mean = {k: ev.metrics[k] for k in names} | {"ms": ev.ms,
+            "branch_err_pct": float(np.mean(errs)) if errs else math.nan,
+            "branch_err_median_pct": float(np.median(errs)) if errs else math.nan}
     if args.json:
-        clean = lambda v: None if isinstance(v, float) and not math.isfinite(v) else v  # noqa: E731
         doc = {"params_hash": params.hash(), "scored": region, "convention": args.convention,
-               "references": references, "frames": [{k: clean(v) for k, v in f.items()} for f in ev.frame_metrics],
-               "mean": {k: clean(v) for k, v in {**ev.metrics, "ms": ev.ms}.items()}}
+               "references": references, "frames": [{k: clean(v) for k, v in r.items()} for r in per],
+               "mean": {k: clean(v) for k, v in mean.items()}}
         print(json.dumps(doc, default=str))
         return 0
     against = sources_text({src["description"]: src["frames"] for src in references["sources"]})
     print(f"scored: {region}, {args.convention} convention; measured against: {against}")
-    print(f"{'frame':<28}" + "".join(f"{n:>9}" for n in (*names, "ms")))
-    for f in ev.frame_metrics:
-        print(f"{f['id']:<28}" + "".join(f"{f.get(n, math.nan):9.3f}" for n in names) + f"{f['ms']:9.0f}")
-    print(f"{'mean':<28}" + "".join(f"{ev.metrics[n]:9.3f}" for n in names) + f"{ev.ms:9.0f}")
+    truth = bool(errs) or any(r["truth_m"] is not None for r in per)
+    head = f"{'truth m':>9}{'branch m':>10}{'err%':>7}" if truth else ""
+    print(f"{'frame':<28}" + "".join(f"{n:>9}" for n in (*names, "ms")) + head)
+    for r in per:
+        tail = ""
+        if truth:
+            t = f"{r['truth_m']:9.3f}" if r["truth_m"] is not None else f"{'-':>9}"
+            b = f"{r['branch_m']:10.3f}" if r["branch_m"] is not None else f"{'none':>10}"
+            e = f"{r['branch_err_pct']:7.2f}" if math.isfinite(r["branch_err_pct"]) else f"{'-':>7}"
+            tail = t + b + e
+        print(f"{r['id']:<28}" + "".join(f"{r[n]:9.3f}" for n in names) + f"{r['ms']:9.0f}" + tail)
+    print(f"{'mean':<28}" + "".join(f"{mean[n]:9.3f}" for n in names) + f"{mean['ms']:9.0f}"
+          + (f"{'':>19}{mean['branch_err_pct']:7.2f}" if truth else ""))
+    if truth:
+        print(f"branch distance: median error {mean['branch_err_median_pct']:.2f}%, mean {mean['branch_err_pct']:.2f}% "
+              "(a frame measured nothing counts 100%)")
     return 0

@@ -4,7 +4,9 @@ Pacing: ``rate_hz`` when given; otherwise the frames' recorded ``time_s`` (which
 daemon's frame logger writes) when every frame has one, else 10 Hz. The truth
 comes from each frame's ``branch_distance_m`` meta when present (synthetic
 sessions). Without ``loop`` the source ends after the last frame and the daemon
-stops cleanly.
+stops cleanly, once the frames in flight are processed. With ``lossless`` the capture
+thread waits for the pipeline instead of replacing an unprocessed frame (every frame
+is processed; the replay runs as fast as the pipeline, never faster than its pacing).
 """
 
 from __future__ import annotations
@@ -35,11 +37,14 @@ class Config:
         Key("rate_hz", "float", None, "frames per second; null: recorded time_s, else 10", 0.01, 1000.0,
             optional=True),
         Key("loop", "bool", False, "start again after the last frame (else the daemon stops)"),
+        Key("lossless", "bool", False, "process every frame: pacing waits for the pipeline instead of the "
+            "newest frame replacing one not yet processed (for evaluating a logged flight; not real time)"),
     )
 
     path: Path
     rate_hz: float | None = None
     loop: bool = False
+    lossless: bool = False
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], source: str | None = None, base_dir: Path | None = None,
@@ -50,12 +55,21 @@ class Config:
         return cls(**values)
 
 
+def _recorded_time(record: FrameRecord) -> Any:
+    """The frame's logged ``time_s``; None when its meta.json is unreadable (read() skips that frame)."""
+    try:
+        return record.load_meta().get("time_s")
+    except FileFormatError:
+        return None
+
+
 class ReplaySource:
     kind = "replay"
 
     def __init__(self, config: Config, clock: Callable[[], float] = time.monotonic,
                  stop_event: threading.Event | None = None, **_: Any):
         self.config = config
+        self.lossless = config.lossless     # read by the capture thread: wait for the pipeline
         self.clock = clock
         self._stop = stop_event or threading.Event()
         self.calibration: Calibration | None = None
@@ -63,11 +77,12 @@ class ReplaySource:
         self._times: list[float] = []
         self._i = 0
         self._lap = 0
-        self._t0 = 0.0
+        self._t0: float | None = None
 
     def describe(self) -> str:
         rate = f"{self.config.rate_hz:g} fps" if self.config.rate_hz else "recorded timing"
-        return f"replay of {self.config.path} ({len(self._frames)} frames, {rate}{', looping' if self.config.loop else ''})"
+        extra = (", looping" if self.config.loop else "") + (", lossless" if self.lossless else "")
+        return f"replay of {self.config.path} ({len(self._frames)} frames, {rate}{extra})"
 
     def open(self) -> None:
         try:
@@ -87,11 +102,12 @@ class ReplaySource:
         self._times = self._timing(frames)
         self._i = 0
         self._lap = 0
-        self._t0 = self.clock()
+        self._t0 = None       # pacing starts at the first read: start-up work after open() (the
+                              # parameters' test render) must not make the first frames late
 
     def _timing(self, frames: list[FrameRecord]) -> list[float]:
         if self.config.rate_hz is None:
-            stamps = [f.load_meta().get("time_s") for f in frames]
+            stamps = [_recorded_time(f) for f in frames]
             if all(isinstance(t, (int, float)) for t in stamps) and list(stamps) == sorted(stamps):
                 return [float(t) - float(stamps[0]) for t in stamps]
         rate = self.config.rate_hz or DEFAULT_RATE_HZ
@@ -109,6 +125,8 @@ class ReplaySource:
             self._i = 0
             self._lap += 1
         lap_s = self._times[-1] + (self._times[1] - self._times[0] if len(self._times) > 1 else 0.1)
+        if self._t0 is None:
+            self._t0 = self.clock()
         due = self._t0 + self._lap * lap_s + self._times[self._i]
         wait = due - self.clock()
         if wait > timeout_s:

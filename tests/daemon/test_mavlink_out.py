@@ -1,5 +1,6 @@
 """MAVLink output against real pymavlink endpoints on loopback: fields, clock, subscriptions, signing, reconnects."""
 
+import os
 import socket
 import threading
 import time
@@ -10,6 +11,7 @@ from uav_depth.daemon.config import MavlinkConfig
 from uav_depth.core.errors import ConfigError
 from uav_depth.daemon.mavlink_out import (MavlinkLink, SendClock, distance_report, load_signing_key,
                                           orientation_code)
+from uav_depth.daemon.mavlink_enums import mavutil
 from uav_depth.daemon.ranging import Estimate, Measurement, RangeLimits
 
 from mavlink_peer import Receiver, free_port
@@ -237,3 +239,82 @@ def test_tcp_link_without_peer_never_blocks_and_reconnects():
         server.close()
     finally:
         assert link.close()
+
+
+def test_udpout_is_bound_to_loopback_and_hears_only_the_autopilot():
+    port = free_port()
+    peer = Receiver(f"udpin:127.0.0.1:{port}", sysid=1, compid=1, autopilot=True)
+    link = MavlinkLink(MavlinkConfig(url=f"udpout:127.0.0.1:{port}")).start()
+    got = []
+    link.subscribe("HEARTBEAT", got.append)
+    stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        assert link.wait_connected(2)
+        local = link._t.local
+        assert local[0] == "127.0.0.1"                              # never 0.0.0.0
+        link.heartbeat()
+        assert peer.wait(lambda: got, 5)                            # the autopilot is heard
+        enc = mavutil().mavlink.MAVLink(None, 42, 1)                # a stranger's valid HEARTBEAT to our port
+        n = len(got)
+        for _ in range(5):
+            stranger.sendto(enc.heartbeat_encode(2, 3, 0, 0, 4).pack(enc), local)
+            time.sleep(0.05)
+        time.sleep(0.3)
+        assert all(m.get_srcSystem() == 1 for m in got[n:])         # the kernel drops the stranger's datagrams
+    finally:
+        stranger.close()
+        link.close()
+        peer.close()
+
+
+def test_serial_link_through_a_pseudo_terminal():
+    master, slave = os.openpty()
+    link = MavlinkLink(MavlinkConfig(url=os.ttyname(slave), baud=57600)).start()
+    parser = mavutil().mavlink.MAVLink(None, 255, 0)
+    parser.robust_parsing = True
+    got = []
+    try:
+        assert link.wait_connected(2)
+        deadline = time.monotonic() + 5
+        os.set_blocking(master, False)
+        while not got and time.monotonic() < deadline:
+            link.heartbeat()
+            time.sleep(0.05)
+            try:
+                data = os.read(master, 4096)
+            except BlockingIOError:
+                continue
+            got += [m for m in parser.parse_buffer(data) or () if m.get_type() == "HEARTBEAT"]
+        assert got and (got[0].get_srcSystem(), got[0].get_srcComponent()) == (1, 191)
+    finally:
+        link.close()
+        os.close(master)
+        os.close(slave)
+
+
+def test_bytes_the_kernel_holds_past_their_deadline_are_discarded_with_a_reset():
+    # a TCP peer whose window is closed (tiny receive buffer, never reads, never answers TIMESYNC):
+    # what waits in our kernel would arrive old, so the connection is reset instead
+    port = free_port(socket.SOCK_STREAM)
+    cfg = MavlinkConfig(url=f"tcpin:127.0.0.1:{port}", rate_hz=200)
+    link = MavlinkLink(cfg).start()
+    pub = Publisher(period_s=0.005)
+    clock = SendClock(link, cfg, 0.2, estimate=lambda: pub.est, limits=lambda: LIMITS, state=lambda: "active").start()
+    peer = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    peer.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1024)
+    try:
+        assert link.wait_connected(2)
+        peer.connect(("127.0.0.1", port))
+        deadline = time.monotonic() + 20
+        while link.discards == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert link.discards >= 1
+        peer.settimeout(2)
+        with pytest.raises(ConnectionResetError):       # after what its buffer held: the reset
+            while peer.recv(65536):
+                pass
+    finally:
+        clock.stop()
+        pub.close()
+        link.close()
+        peer.close()
