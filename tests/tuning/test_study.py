@@ -105,7 +105,7 @@ def test_every_fitness_scores_the_baseline(tiny_frames, metric):
     assert {"mse", "psnr", "ssim", "bad2", "valid", "branch"} <= set(full.metrics)
     assert [f["id"] for f in full.frame_metrics] == ["tiny/000000", "tiny/000001"]
     bench = evaluate(TINY_BASE, tiny_frames, FITNESS[metric], full=True, convention="bench")
-    assert {"mae", "rmse", "bad1", "bad2", "bad4", "psnr", "density", "branch"} == set(bench.metrics)
+    assert {"mae", "rmse", "bad1", "bad2", "bad4", "psnr", "density", "branch", "truth_m", "branch_m"} == set(bench.metrics)
 
 
 @pytest.mark.parametrize("metric", ["flown", "flown-bad2"])
