@@ -74,6 +74,7 @@ def sweep(dists, seeds, variants=tuple(VARIANTS), params_names=("baseline", "fli
                     out = meas.measure(frame.left, frame.right)
                     inside = frame.truth_m < meas.min_range_m
                     err = rel_err(out["reported_m"], frame.truth_m)
+                    out["exact_err"] = rel_err(meas.measure_exact(frame.disparity), frame.truth_m)
                     rows.append({"params": name, "variant": variant, "seed": seed, "distance_m": d,
                                  "truth_m": frame.truth_m, "nearest_any_m": frame.nearest_any_m,
                                  "min_range_m": meas.min_range_m, "inside_min": bool(inside), **out, "err": err,
@@ -86,20 +87,27 @@ def sweep(dists, seeds, variants=tuple(VARIANTS), params_names=("baseline", "fli
     return rows
 
 
-def summarize(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+def summarize(rows: list[dict[str, Any]], by_variant: bool = True) -> list[dict[str, Any]]:
+    """Per parameter set over all variants ("all"), then per (parameter set, variant)."""
+    groups = [(name, "all") for name in dict.fromkeys(r["params"] for r in rows)]
+    if by_variant:
+        groups += list(dict.fromkeys((r["params"], r["variant"]) for r in rows))
     out = []
-    for name in dict.fromkeys(r["params"] for r in rows):
-        rs = [r for r in rows if r["params"] == name]
+    for name, variant in groups:
+        rs = [r for r in rows if r["params"] == name and variant in ("all", r["variant"])]
         inside = [r for r in rs if r["inside_min"]]
         errs = [r["err"] for r in rs if r["err"] is not None and not r["inside_min"]]
         worst = max(errs, key=abs) if errs else None
         out.append({
-            "params": name, "frames": len(rs), "min_range_m": rs[0]["min_range_m"],
+            "params": name, "variant": variant, "frames": len(rs), "min_range_m": rs[0]["min_range_m"],
             "inside_min": len(inside), "inside_min_too_close": sum(r["too_close"] for r in inside),
             "inside_min_sent_valid": sum(r["reported_m"] is not None for r in inside),
+            "too_close_in_range": sum(r["too_close"] for r in rs if not r["inside_min"]),
             "farther_2pct": sum(r["farther"] for r in rs),
             "farther_2pct_inside_min": sum(r["farther"] for r in inside),
             "median_abs_err": float(np.median(np.abs(errs))) if errs else None,
+            "exact_farther_2pct": sum(r["exact_err"] is not None and r["exact_err"] > FARTHER_TOL
+                                      for r in rs if not r["inside_min"]),
             "worst_err": worst,
             "no_measurement": sum(r["reported_m"] is None and not r["too_close"] for r in rs if not r["inside_min"]),
             "frames_in_range": len(rs) - len(inside),
@@ -108,15 +116,18 @@ def summarize(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def format_table(summary: list[dict[str, Any]]) -> str:
-    head = (f"{'params':9s} {'frames':>6s} {'min m':>6s} {'inside':>6s} {'too close':>9s} {'sent valid':>10s} "
-            f"{'farther>2%':>10s} {'median|e|':>9s} {'worst':>8s} {'no meas':>7s}")
+    head = (f"{'params':9s} {'variant':7s} {'frames':>6s} {'min m':>6s} {'inside':>6s} {'too close':>9s} {'sent valid':>10s} "
+            f"{'farther>2%':>10s} {'median|e|':>9s} {'worst':>8s} {'no meas':>7s} {'close!':>6s} {'exact>2%':>8s}")
     lines = [head, "-" * len(head)]
     for s in summary:
-        lines.append(f"{s['params']:9s} {s['frames']:6d} {s['min_range_m']:6.3f} {s['inside_min']:6d} "
+        lines.append(f"{s['params']:9s} {s['variant']:7s} {s['frames']:6d} {s['min_range_m']:6.3f} {s['inside_min']:6d} "
                      f"{s['inside_min_too_close']:9d} {s['inside_min_sent_valid']:10d} {s['farther_2pct']:10d} "
-                     f"{fmt_pct(s['median_abs_err']):>9s} {fmt_pct(s['worst_err']):>8s} {s['no_measurement']:7d}")
+                     f"{fmt_pct(s['median_abs_err']):>9s} {fmt_pct(s['worst_err']):>8s} {s['no_measurement']:7d} {s['too_close_in_range']:6d} "
+                     f"{s['exact_farther_2pct']:8d}")
     lines.append("inside: truth nearer than the minimum range; too close / sent valid: of those; farther>2%: valid "
-                 "distance > 1.02 x truth (all frames); median/worst: valid distances in range; no meas: in range")
+                 "distance > 1.02 x truth (all frames); median/worst: valid distances in range; no meas: in range;\n"
+                 "close!: in range but sent as too close (safe, not the truth); "
+                 "exact>2%: in range, the same ranging on the exact disparity farther than truth by > 2% (the ranging's own)")
     return "\n".join(lines)
 
 

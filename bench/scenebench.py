@@ -3,8 +3,9 @@ cached synthetic frames, and one frame measured as the daemon does and put on th
 
 A frame goes through the real ``DisparityPipeline``, the daemon's ``Ranger`` and
 ``mavlink_out.distance_report``: the distance judged is what DISTANCE_SENSOR would carry
-(``current_distance`` in cm, valid or not), and "too close" is read from the estimate
-(``getattr(..., "too_close", False)`` until the ranging's too-close rule lands).
+when its condition is "measuring" (``current_distance`` in cm); "too close" is that
+report's condition (the wire's: a reading at or inside the minimum range, or an
+estimate the ranging marks ``too_close``).
 """
 
 from __future__ import annotations
@@ -21,8 +22,9 @@ from typing import Any
 import numpy as np
 
 from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.core.disparity.result import DisparityResult
 from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, load_params, read_provenance
-from uav_depth.daemon.mavlink_out import distance_report
+from uav_depth.daemon.mavlink_out import TOO_CLOSE, distance_report
 from uav_depth.daemon.ranging import Estimate, Ranger, RangingConfig
 from uav_depth.sim.scene import Scene, SceneConfig
 
@@ -51,6 +53,7 @@ class Rendered:
     truth_m: float          # nearest significant object in the ranging region (sim/truth.py)
     nearest_any_m: float    # nearest surface of anything there, needles included
     target_m: float         # nearest surface of the target branch there
+    disparity: np.ndarray   # exact left disparity, px (0 on the sky)
 
 
 def render_cached(cfg: SceneConfig, cache: bool = True) -> Rendered:
@@ -62,15 +65,18 @@ def render_cached(cfg: SceneConfig, cache: bool = True) -> Rendered:
     path = CACHE_DIR / f"{key}.npz"
     if cache and path.exists():
         z = np.load(path)
-        return Rendered(z["left"], z["right"], float(z["truth"]), float(z["any"]), float(z["target"]))
+        if "disp" in z.files:
+            return Rendered(z["left"], z["right"], float(z["truth"]), float(z["any"]), float(z["target"]), z["disp"])
     frame = Scene(cfg).render(rng=np.random.default_rng([cfg.seed, 0]))
     roi = cfg.center_roi
     t = frame.truth(roi)
-    r = Rendered(frame.left, frame.right, t.significant_m, t.nearest_any_m, frame.nearest_branch_distance(roi))
+    r = Rendered(frame.left, frame.right, t.significant_m, t.nearest_any_m, frame.nearest_branch_distance(roi),
+                 frame.disparity)
     if cache:
         CACHE_DIR.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
-        np.savez(tmp, left=r.left, right=r.right, truth=r.truth_m, any=r.nearest_any_m, target=r.target_m)
+        np.savez(tmp, left=r.left, right=r.right, truth=r.truth_m, any=r.nearest_any_m, target=r.target_m,
+                 disp=r.disparity)
         os.replace(tmp, path)
     return r
 
@@ -87,6 +93,11 @@ class Measurer:
     def min_range_m(self) -> float:
         return self.ranger.limits.min_distance_m
 
+    def measure_exact(self, disparity: np.ndarray) -> float | None:
+        """The same ranging on the exact disparity (no matcher): the ranging's own error, m."""
+        d = np.where(disparity > 0, disparity, np.nan).astype(np.float32)
+        return self.ranger.measure(DisparityResult(d, d, None)).distance_m
+
     def measure(self, left: np.ndarray, right: np.ndarray) -> dict[str, Any]:
         """What the wire would say for this pair: reported_m (None: no measurement), too_close, quality, ms."""
         t0 = time.perf_counter()
@@ -94,13 +105,11 @@ class Measurer:
         m = self.ranger.measure(result)
         ms = (time.perf_counter() - t0) * 1e3
         now = time.monotonic()
-        est = Estimate(m, self.ranger.limits, now, now, 0, "bench")
+        est = Estimate(m, self.ranger.limits, now, now, 0, "bench", too_close=m.too_close)   # as the service does
         rep = distance_report(est, self.ranger.limits, now, 1.0, now)
-        too_close = bool(getattr(est, "too_close", False) or getattr(m, "too_close", False)
-                         or getattr(rep, "too_close", False))
         return {"reported_m": rep.current_distance / 100.0 if rep.valid else None,
-                "ranged_m": m.distance_m, "too_close": too_close, "quality": rep.signal_quality,
-                "ms": ms, "reason": m.reason}
+                "ranged_m": m.distance_m, "too_close": rep.condition == TOO_CLOSE, "condition": rep.condition,
+                "quality": rep.signal_quality, "ms": ms, "reason": m.reason}
 
 
 def rel_err(reported: float | None, truth: float) -> float | None:

@@ -13,7 +13,7 @@ import importlib
 import sys
 from typing import Sequence
 
-from uav_depth.core.errors import CalibrationError, ConfigError, DependencyError, UavDepthError
+from uav_depth.core.errors import CalibrationError, ConfigError, DependencyError, OutputExistsError, UavDepthError
 
 #: Exit codes. EXIT_CONFIG is sysexits' EX_CONFIG: the systemd unit lists it in
 #: RestartPreventExitStatus so a typo in a config does not restart-loop.
@@ -21,6 +21,8 @@ EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_CONFIG = 0, 1, 2, 130, 7
 #: sysexits' EX_UNAVAILABLE: `run` could not find its camera at start-up. Not in
 #: RestartPreventExitStatus, so systemd retries until the camera appears.
 EXIT_UNAVAILABLE = 69
+#: sysexits' EX_CANTCREAT: an output exists (a session) and --overwrite was not given.
+EXIT_CANTCREAT = 73
 
 #: name -> (module, one-line help). Modules are relative to uav_depth.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -35,6 +37,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("uav_depth.cli.commands.run", "the on-board daemon: stereo -> branch distance -> MAVLink DISTANCE_SENSOR"),
     "sitl": ("uav_depth.cli.commands.sitl",
              "fly the daemon against a simulated autopilot: synthetic stereo rendered from its pose"),
+    "check-rig": ("uav_depth.cli.commands.check_rig",
+                  "measure the stereo rig's vertical misalignment (is it still rectified? can SGBM work?)"),
     "sources": ("uav_depth.cli.commands.sources", "list the frame sources run accepts (and probe for hardware)"),
     "reference": ("uav_depth.cli.commands.reference",
                   "give logged frames a reference disparity (import one, or run an ONNX stereo network)"),
@@ -70,6 +74,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except DependencyError as exc:
         print(f"uav-depth {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_ERROR
+    except OutputExistsError as exc:
+        print(f"uav-depth {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_CANTCREAT
     except ModuleNotFoundError as exc:
         # The drone's base install has no extras; a command that needs one says which.
         missing = DependencyError.from_missing(exc, f"uav-depth {args.command}")

@@ -68,5 +68,9 @@ class FrameError(UavDepthError, ValueError):
     """A stereo pair is unusable (empty, mismatched sizes, wrong dtype)."""
 
 
+class OutputExistsError(UavDepthError):
+    """An output (a session directory) exists and must not be overwritten without being told to."""
+
+
 class ParameterWarning(UserWarning):
     """Parameters that validate but that OpenCV cannot compute meaningfully."""

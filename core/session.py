@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
@@ -29,7 +30,7 @@ import cv2
 import numpy as np
 
 from uav_depth.core.calibration import Calibration, load_calibration, save_calibration
-from uav_depth.core.errors import FileFormatError
+from uav_depth.core.errors import FileFormatError, OutputExistsError
 
 CALIBRATION_FILE = "calibration.yaml"
 FRAMES_DIR = "frames"
@@ -237,6 +238,26 @@ def iter_frames(logdir: str | os.PathLike[str], require_reference: bool = False)
             if require_reference and frame.ref_path is None:
                 continue
             yield frame
+
+
+def prepare_output(path: str | os.PathLike[str], overwrite: bool = False) -> Path:
+    """Make ``path`` ready to receive a new session; OutputExistsError when that would destroy something.
+
+    A missing or empty directory is fine. An existing session is refused unless ``overwrite``,
+    and then removed first (so no frame or calibration of the old one is mixed into the new).
+    A file, or a non-empty directory that is not a session, is always refused.
+    """
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise OutputExistsError(f"{p} is a file, not a session directory: choose another path")
+    if p.is_dir() and any(p.iterdir()):
+        if not Session.is_session(p):
+            raise OutputExistsError(f"{p} is a non-empty directory that is not a session: choose another path")
+        if not overwrite:
+            raise OutputExistsError(f"{p} already holds a session ({len(Session(p).frames())} frames): "
+                                    "pass --overwrite to replace it, or choose another path")
+        shutil.rmtree(p)
+    return p
 
 
 class SessionWriter:

@@ -1,7 +1,8 @@
 """The capture thread: the source into a one-slot mailbox, and reconnecting when the camera is lost.
 
 The newest frame wins: older ones are dropped (counted), never queued, so the
-stereo stage always works on the latest view. Camera loss (a SourceError, any
+stereo stage always works on the latest view; a source with ``lossless`` true (replay
+for evaluation) waits for the slot instead, so every frame is processed. Camera loss (a SourceError, any
 driver error, or no frame for ``service.frame_timeout_s``): close, reopen with
 exponential back-off between ``reconnect_min_s`` and ``reconnect_max_s``. What the
 loss means for the link and the state is the caller's (``on_lost`` / ``on_back``).
@@ -30,18 +31,24 @@ class Mailbox:
         self._item: Frame | None = None
         self.dropped = 0
 
-    def put(self, item: Frame) -> None:
+    def put(self, item: Frame, wait_for_room: threading.Event | None = None) -> None:
+        """Place ``item``; with ``wait_for_room`` (a stop event), first wait until the slot is empty
+        (lossless: nothing is dropped, the source waits for the pipeline) unless the event is set."""
         with self._cond:
+            if wait_for_room is not None:
+                while self._item is not None and not wait_for_room.is_set():
+                    self._cond.wait(0.1)
             if self._item is not None:
                 self.dropped += 1
             self._item = item
-            self._cond.notify()
+            self._cond.notify_all()
 
     def get(self, timeout_s: float) -> Frame | None:
         with self._cond:
             if self._item is None:
                 self._cond.wait(timeout_s)
             item, self._item = self._item, None
+            self._cond.notify_all()    # a lossless put waits for the slot to empty
             return item
 
 
@@ -115,4 +122,5 @@ class Capture:
             last = now
             self.frames_in += 1
             self.on_back()
-            self.mailbox.put(frame)
+            # A lossless source (replay with source.lossless) waits for the pipeline instead of dropping.
+            self.mailbox.put(frame, self.stop if getattr(self.source, "lossless", False) else None)

@@ -15,6 +15,7 @@ path, the rule and the value, and where the value came from.
 
 from __future__ import annotations
 
+import ipaddress
 import logging
 import os
 import re
@@ -29,7 +30,9 @@ from uav_depth.core.errors import ConfigError, FileFormatError
 from uav_depth.core.keys import Key, section_values
 from uav_depth.daemon.liveview import LiveViewConfig
 from uav_depth.daemon.mavlink_enums import orientation_code
+from uav_depth.daemon.obstacles import ObstacleConfig
 from uav_depth.daemon.ranging import RangingConfig
+from uav_depth.daemon.rigwatch import RigCheckConfig
 from uav_depth.daemon.sources import BUILTIN, SourceTable, source_config_from_dict, source_keys
 from uav_depth.core.validate import fmt, in_range, number
 
@@ -42,7 +45,7 @@ ENV_RESERVED = ("UAV_DEPTH_CONFIG",)
 
 # -- sections ---------------------------------------------------------------------------------
 
-_URL_SCHEMES = ("udpout", "udpin", "udp", "udpbcast", "tcp", "tcpin")
+_URL_SCHEMES = ("udpout", "udpin", "udp", "tcp", "tcpin")
 
 
 def _check_url(url: str) -> str | None:
@@ -55,6 +58,14 @@ def _check_url(url: str) -> str | None:
     port = int(rest.rsplit(":", 1)[1])
     if not 0 < port < 65536:
         return "must name a port between 1 and 65535"
+    return None
+
+
+def _check_ip(value: Any) -> str | None:
+    try:
+        ipaddress.IPv4Address(value)
+    except ValueError:
+        return "must be an IPv4 address of this machine (e.g. 192.168.2.10)"
     return None
 
 
@@ -81,13 +92,15 @@ class MavlinkConfig:
     signing_key_file: Path | None = None
     target_system: int = 0
     target_component: int = 0
+    bind_address: str | None = None
 
     KEYS = (
         Key("url", "str", "udpout:127.0.0.1:14550", "pymavlink connection string (udpout, udpin, tcp, tcpin, serial)",
             check=_check_url),
         Key("baud", "int", 115200, "serial baud rate (serial devices only)", 1200, 12_000_000),
-        Key("rate_hz", "float", 20.0, "DISTANCE_SENSOR rate, Hz (fixed clock, independent of the stereo rate)",
-            2.0, 200.0),
+        Key("rate_hz", "float", 20.0, "most DISTANCE_SENSOR per second: each new estimate is sent as soon as it "
+            "exists, so the rate is the stereo rate up to this cap (set it to the camera's frame rate to send every "
+            "frame)", 2.0, 200.0),
         Key("system_id", "int", 1, "our MAVLink system id (the vehicle's, so ground stations group us with it)",
             1, 255),
         Key("component_id", "int", 191, "our MAVLink component id (191 = MAV_COMP_ID_ONBOARD_COMPUTER)", 1, 255),
@@ -100,8 +113,12 @@ class MavlinkConfig:
         Key("signing_key_file", "path", None, "MAVLink 2 signing key file (64 hex digits, 32 raw bytes, or a "
             "passphrase hashed with SHA-256 as MAVProxy does); must not be readable by group or others",
             optional=True),
-        Key("target_system", "int", 0, "autopilot system id for commands; 0: learn it from its HEARTBEAT", 0, 255),
+        Key("target_system", "int", 0, "the autopilot's system id: commands go to it, and udpin answers only the "
+            "address whose HEARTBEAT carries it; 0: the first autopilot HEARTBEAT", 0, 255),
         Key("target_component", "int", 0, "autopilot component id for commands; 0: learn it", 0, 255),
+        Key("bind_address", "str", None, "udpout: local address to send from (an interface's address); null: the "
+            "address the route to the autopilot uses (127.0.0.1 for a loopback autopilot), never 0.0.0.0",
+            optional=True, check=_check_ip),
     )
 
 
@@ -154,7 +171,8 @@ class ServiceConfig:
 
 
 SECTION_CLASSES: dict[str, type] = {"ranging": RangingConfig, "mavlink": MavlinkConfig,
-                                    "logging": LoggingConfig, "service": ServiceConfig, "liveview": LiveViewConfig}
+                                    "logging": LoggingConfig, "service": ServiceConfig, "liveview": LiveViewConfig,
+                                    "rig_check": RigCheckConfig, "obstacle_distance": ObstacleConfig}
 TOP_KEYS = ("source", "calibration", "params_file", *SECTION_CLASSES)
 
 
@@ -170,6 +188,8 @@ class RunConfig:
     logging: LoggingConfig = LoggingConfig()
     service: ServiceConfig = ServiceConfig()
     liveview: LiveViewConfig = LiveViewConfig()
+    rig_check: RigCheckConfig = RigCheckConfig()
+    obstacle_distance: ObstacleConfig = ObstacleConfig()
     origin: Mapping[str, str] = field(default_factory=dict, compare=False)   # key -> where it came from
 
     @property

@@ -280,8 +280,9 @@ def render(offer: Offer, panel_width_px: int, fb_px_m: float) -> np.ndarray:
             bx0, by0, bx1, by1 = m.bbox
             cv2.rectangle(p, (int(bx0 * s), int(by0 * s)), (int(bx1 * s) - 1, int(by1 * s) - 1), _GREEN, 2)
     text = f"{m.distance_m:.3f} m  q {m.quality}" if m.distance_m is not None else f"no measurement: {m.reason}"
-    cv2.putText(panels[0], text, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 3, cv2.LINE_AA)
-    cv2.putText(panels[0], text, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, _WHITE, 1, cv2.LINE_AA)
+    (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.6, 1)
+    cv2.rectangle(panels[0], (4, 4), (12 + tw, 12 + th), (0, 0, 0), -1)
+    cv2.putText(panels[0], text, (8, 8 + th), cv2.FONT_HERSHEY_SIMPLEX, 0.6, _WHITE, 1, cv2.LINE_AA)
     top = np.hstack(panels)
     bottom = np.zeros((52, top.shape[1], 3), np.uint8)
     bottom[:, panel_width_px:] = colour_bar(panel_width_px, lo, hi, fb_px_m)

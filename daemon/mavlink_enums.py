@@ -6,6 +6,7 @@ validate an orientation without importing the link that is built from it.
 
 from __future__ import annotations
 
+import math
 import os
 from typing import Any
 
@@ -57,3 +58,25 @@ def orientation_code(value: Any) -> int:
                 return code
     raise ValueError("must be forward, back, left, right, up, down, a MAV_SENSOR_ROTATION name (ROLL_180) "
                      "or a number 0..40")
+
+
+def cm_down(distance_m: float) -> int:
+    """A distance in whole cm, rounded down (nearer), never up: 0.2749 m -> 27.
+
+    The 1e-6 cm guard keeps binary floating point from taking 0.29 m (28.999999999999996)
+    down to 28.
+    """
+    return int(math.floor(distance_m * 100.0 + 1e-6))
+
+
+def wire_range_cm(min_distance_m: float, max_distance_m: float) -> tuple[int, int]:
+    """(min_distance, max_distance) in cm on the wire for a sensor's range (m); one rule for every message.
+
+    min_distance is the minimum range rounded down, less 1 cm: every reading (>= the
+    minimum, rounded down) is then strictly greater, as PX4 requires, and "too close"
+    (min_distance + 1) is the minimum range itself rounded down. max_distance is the
+    maximum range rounded down (a reading beyond it is not sent).
+    """
+    min_cm = max(0, cm_down(min_distance_m) - 1)
+    max_cm = max(min_cm + 1, min(65534, cm_down(max_distance_m)))
+    return min_cm, max_cm

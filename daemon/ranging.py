@@ -24,7 +24,7 @@ than ``max_jump_rel`` from the last accepted one is held back until
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Mapping
 
 import numpy as np
@@ -34,6 +34,8 @@ from uav_depth.core.disparity import DisparityResult
 from uav_depth.core.errors import ConfigError
 from uav_depth.core.keys import Key
 from uav_depth.core.params import StereoParams
+from uav_depth.core.roi import center_roi
+from uav_depth.core.significant import SIGNIFICANT_AREA_M2
 
 #: Disparity margin around the object's depth band, matched px: SGBM's typical matching noise.
 CLUSTER_MARGIN_PX = 1.0
@@ -42,6 +44,13 @@ CLUSTER_MARGIN_PX = 1.0
 #: whole branch), so even a perfectly tight cluster is only known to about +-0.5 px: a uniform
 #: error of that width has sigma 1/sqrt(12).
 PIXEL_LOCKING_SIGMA_PX = 1.0 / math.sqrt(12.0)
+#: Too close by the near pass (:mod:`uav_depth.core.disparity.near`): at least this share of the ROI
+#: matched confidently beyond the main search. Measured with the flight file (docs/ranging.md):
+#: branches at 0.08-0.27 m give 0.21-0.74, frames with nothing nearer than the minimum range at most 0.06.
+NEAR_BEYOND_SHARE = 0.15
+#: A frame that measures (almost) nothing right after a too-close one is still too close: the object
+#: that was nearer than the minimum range now fills the view, texture-less (docs/ranging.md).
+BLANK_VALID_FRACTION = 0.1
 
 
 @dataclass(frozen=True)
@@ -50,6 +59,8 @@ class RangingConfig:
 
     roi: tuple[int, int, int, int] | None = None
     min_valid_px: int = 100
+    min_object_m2: float = SIGNIFICANT_AREA_M2
+    min_quality: int = 40
     min_confidence: float = 0.5
     max_age_ms: float = 300.0
     max_distance_m: float = 10.0
@@ -61,7 +72,13 @@ class RangingConfig:
     KEYS = (
         Key("roi", "roi", None, "region of interest in the rectified left image, px; null: the central third",
             optional=True),
-        Key("min_valid_px", "int", 100, "fewest measured pixels the nearest object needs to count", 1, 10_000_000),
+        Key("min_valid_px", "int", 100, "fewest matched pixels (at compute.scale) the nearest object needs to count; "
+            "SGBM's own speckle window is 100", 1, 10_000_000),
+        Key("min_object_m2", "float", SIGNIFICANT_AREA_M2,
+            "smallest visible area, m^2 at its measured depth, that the nearest object needs to count "
+            "(2 cm^2: a twig the saw or a propeller would hit)", 0.0, 1.0),
+        Key("min_quality", "int", 40, "readings of lower signal quality (2..100) are no measurement "
+            "(docs/ranging.md: correct readings score 60-75, wrong ones 2-30)", 0, 100),
         Key("min_confidence", "float", 0.5, "WLS confidence (0..1) a measured pixel needs to be used", 0.0, 1.0),
         Key("max_age_ms", "float", 300.0,
             "an estimate older than this (from frame capture) is never sent as valid; "
@@ -88,7 +105,9 @@ class Measurement:
     valid fraction of the ROI and the object's mean confidence (1 is reserved for
     "invalid" on the wire); ``bbox``: (x0, y0, x1, y1) px of the object's pixels in
     the image; ``disparity_px``/``sigma_px``: the object's disparity and spread;
-    ``n_px``: its pixel count; ``valid_fraction``: measured confident pixels / ROI area.
+    ``n_px``: its pixel count; ``valid_fraction``: measured confident pixels / ROI area;
+    ``too_close``: an object is nearer than the minimum range (``distance_m`` is then
+    None: no distance was measured, but the obstacle is nearer than ``min_distance_m``).
     """
 
     distance_m: float | None
@@ -100,6 +119,7 @@ class Measurement:
     n_px: int = 0
     valid_fraction: float = 0.0
     reason: str | None = None
+    too_close: bool = False
 
     @property
     def valid(self) -> bool:
@@ -117,8 +137,8 @@ class RangeLimits:
 
 
 def default_roi(width: int, height: int) -> tuple[int, int, int, int]:
-    """The central third of the image (as SceneConfig.center_roi)."""
-    return (width // 3, height // 3, 2 * width // 3, 2 * height // 3)
+    """The central third of the image (:func:`uav_depth.core.roi.center_roi`, as the simulator's)."""
+    return center_roi(width, height)
 
 
 def resolve_roi(roi: tuple[int, int, int, int] | None, width: int, height: int) -> tuple[int, int, int, int]:
@@ -159,6 +179,7 @@ class Ranger:
         # With compute.scale < 1 SGBM counts matched pixels; disparities come back in input pixels.
         self.px = 1.0 / params.compute.scale          # input pixels per matched pixel
         d_max = (sg.min_disparity + sg.num_disparities - 1) * self.px   # largest disparity returned, px
+        self.d_max = d_max
         if d_max <= 0:
             raise ConfigError("sgbm.num_disparities", "must reach positive disparities for ranging",
                               sg.num_disparities)
@@ -185,13 +206,21 @@ class Ranger:
         vals = disp[ok]
         n_valid = vals.size
         valid_fraction = n_valid / area
-        if n_valid < cfg.min_valid_px:
+        near = self._too_close(result)
+        if near is not None:
+            return Measurement(None, n_px=n_valid, valid_fraction=valid_fraction, reason=near, too_close=True)
+        front = self._front(vals)
+        if front is None:
             return Measurement(None, n_px=n_valid, valid_fraction=valid_fraction,
-                               reason=f"{n_valid} confident measured pixels in the ROI, fewer than "
-                                      f"min_valid_px {cfg.min_valid_px}")
-        k = cfg.min_valid_px
-        front = float(np.partition(vals, n_valid - k)[n_valid - k])    # the k-th largest disparity
+                               reason=f"no object of {cfg.min_valid_px} matched pixels and "
+                                      f"{cfg.min_object_m2 * 1e4:g} cm^2 among the {n_valid} confident "
+                                      f"measured pixels in the ROI")
         margin = CLUSTER_MARGIN_PX * self.px
+        if front >= self.d_max - margin:
+            # The object piles at the end of the search: it may be nearer than SGBM can tell.
+            return Measurement(None, n_px=n_valid, valid_fraction=valid_fraction, too_close=True,
+                               reason=f"the nearest object's disparity {front:.1f} px is at the search's end "
+                                      f"{self.d_max:.1f} px: nearer than {self.limits.min_distance_m:.3f} m")
         lower = self.fb / (self.fb / front + cfg.cluster_depth_m) - margin
         upper = front + margin
         member = (vals >= lower) & (vals <= upper)
@@ -212,8 +241,51 @@ class Ranger:
         rows, cols = np.flatnonzero(obj.any(axis=1)), np.flatnonzero(obj.any(axis=0))
         bbox = (int(cols[0]) + x0, int(rows[0]) + y0, int(cols[-1]) + x0 + 1, int(rows[-1]) + y0 + 1)
         n_obj = int(v.size)
+        if quality < cfg.min_quality:
+            return Measurement(None, quality=quality, bbox=bbox, disparity_px=d, sigma_px=sigma_d, n_px=n_obj,
+                               valid_fraction=valid_fraction,
+                               reason=f"signal quality {quality} below min_quality {cfg.min_quality} "
+                                      f"(the object would read {z:.3f} m)")
         return Measurement(distance_m=z, sigma_m=sigma_z, quality=quality, bbox=bbox, disparity_px=d,
                            sigma_px=sigma_d, n_px=n_obj, valid_fraction=valid_fraction)
+
+    def _front(self, vals: np.ndarray) -> float | None:
+        """The nearest disparity (px) at which the pixels at least as near form a significant object:
+        at least ``min_valid_px`` matched pixels and ``min_object_m2`` of visible area; None if none."""
+        if vals.size == 0:
+            return None
+        cfg = self.config
+        # Disparities in 1/16 matched px (SGBM's own resolution), counted from the nearest down.
+        q = np.rint(vals * (16.0 / self.px)).astype(np.int64)
+        counts = np.bincount(q)
+        levels = np.arange(counts.size) * (self.px / 16.0)
+        with np.errstate(divide="ignore"):
+            px_area = np.where(levels > 0, (self.calibration.baseline_m / np.maximum(levels, 1e-9)) ** 2, 0.0)
+        n_near = np.cumsum(counts[::-1])[::-1] / (self.px * self.px)      # matched pixels at or nearer
+        a_near = np.cumsum((counts * px_area)[::-1])[::-1]                # m^2 at or nearer
+        hit = np.flatnonzero((n_near >= cfg.min_valid_px) & (a_near >= cfg.min_object_m2))
+        if hit.size == 0:
+            return None
+        return float(vals[q >= hit[-1]].min())
+
+    def _too_close(self, result: DisparityResult) -> str | None:
+        """Why the region holds an object nearer than the minimum range, or None (docs/ranging.md)."""
+        near = result.near
+        if near is None:
+            return None
+        x0, y0, x1, y1 = self.roi
+        cfg = self.config
+        nd = near.disparity[y0:y1, x0:x1]
+        with np.errstate(invalid="ignore"):
+            beyond = nd > self.d_max
+            if result.near_confidence is not None:
+                beyond &= result.near_confidence[y0:y1, x0:x1] >= cfg.min_confidence
+        share = float(beyond.mean()) if beyond.size else 0.0
+        if share >= NEAR_BEYOND_SHARE:
+            b = nd[beyond]
+            return (f"the near pass matches {share:.0%} of the ROI at disparities {np.median(b):.0f} px (median), "
+                    f"beyond the search's {self.d_max:.0f} px: nearer than {self.limits.min_distance_m:.3f} m")
+        return None
 
 
 def _fov(a0: int, a1: int, c: float, f: float) -> float:
@@ -223,12 +295,17 @@ def _fov(a0: int, a1: int, c: float, f: float) -> float:
 
 @dataclass
 class OutlierGate:
-    """Single-frame outlier rejection over successive measurements.
+    """Single-frame outlier rejection over successive measurements, asymmetric.
 
-    A distance that differs from the last accepted one by more than ``max_jump_rel``
-    (relative) is held back; it is accepted once ``confirm_frames`` consecutive
-    frames agree with each other within that tolerance. After ``forget_s`` without
-    an accepted measurement the history is forgotten (the next one is accepted).
+    A nearer distance is accepted at once, whatever the jump: for a drone closing
+    on a branch, a sudden nearer object must win now, and holding it back would
+    keep sending the older, farther distance. A distance *farther* than the last
+    accepted one by more than ``max_jump_rel`` (relative) is held back; it is
+    accepted once ``confirm_frames`` consecutive frames agree with each other within
+    that tolerance. After ``forget_s`` without an accepted measurement the history
+    is forgotten (the next one is accepted). :meth:`too_close` records a frame
+    reported too close as the nearest distance, so that a jump away from it needs
+    confirming too.
     """
 
     max_jump_rel: float
@@ -237,11 +314,12 @@ class OutlierGate:
     _last: float | None = None
     _last_t: float = -math.inf
     _pending: list[float] = field(default_factory=list)
+    _too_close_t: float = -math.inf
 
     def accept(self, distance_m: float, t: float) -> bool:
         if self.max_jump_rel <= 0 or self._last is None or t - self._last_t > self.forget_s:
             return self._take(distance_m, t)
-        if abs(distance_m - self._last) <= self.max_jump_rel * self._last:
+        if distance_m - self._last <= self.max_jump_rel * self._last:     # nearer, or not much farther
             return self._take(distance_m, t)
         if self._pending and abs(distance_m - self._pending[-1]) > self.max_jump_rel * self._pending[-1]:
             self._pending = []
@@ -250,12 +328,33 @@ class OutlierGate:
             return self._take(distance_m, t)
         return False
 
+    def too_close(self, min_distance_m: float, t: float) -> None:
+        """A frame found the object nearer than ``min_distance_m``: the nearest possible reading."""
+        self._take(min_distance_m, t)
+        self._too_close_t = t
+
+    def near(self, m: Measurement, min_distance_m: float, t: float) -> Measurement:
+        """Book a too-close measurement; keep a blank frame right after one too close.
+
+        A frame that measures almost nothing (valid fraction under
+        :data:`BLANK_VALID_FRACTION`) within ``forget_s`` of a too-close one is too
+        close as well: the object that came nearer than the minimum range now fills
+        the view and nothing in it can be matched (seen at 0.05-0.07 m).
+        """
+        if m.too_close:
+            self.too_close(min_distance_m, t)
+            return m
+        if (not m.valid and m.valid_fraction < BLANK_VALID_FRACTION and t - self._too_close_t <= self.forget_s):
+            self.too_close(min_distance_m, t)
+            return replace(m, too_close=True, reason=f"blank after a too-close frame ({m.reason})")
+        return m
+
     def _take(self, distance_m: float, t: float) -> bool:
         self._last, self._last_t, self._pending = distance_m, t, []
         return True
 
     def reset(self) -> None:
-        self._last, self._last_t, self._pending = None, -math.inf, []
+        self._last, self._last_t, self._pending, self._too_close_t = None, -math.inf, [], -math.inf
 
 
 @dataclass(frozen=True)
@@ -264,7 +363,9 @@ class Estimate:
 
     ``t_capture``: monotonic s of the frame's capture (age is measured from it);
     ``timings_ms``: per-stage wall times of this frame; ``truth_m``: the source's
-    ground truth when it knows it.
+    ground truth when it knows it; ``too_close``: an object is nearer than
+    ``limits.min_distance_m`` (no distance measured; the link sends it as an
+    obstacle nearer than the minimum, never as clear).
     """
 
     measurement: Measurement
@@ -275,6 +376,7 @@ class Estimate:
     params_hash: str
     truth_m: float | None = None
     timings_ms: Mapping[str, float] = field(default_factory=dict)
+    too_close: bool = False
 
     @property
     def distance_m(self) -> float | None:

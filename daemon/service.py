@@ -43,6 +43,8 @@ from uav_depth.daemon.config import RunConfig
 from uav_depth.daemon.framelog import FrameLogger, frame_meta
 from uav_depth.daemon.health import Health, Stats, status_line
 from uav_depth.daemon.liveview import LiveView
+from uav_depth.daemon.obstacles import Field, ObstacleSender, encoder, limits_cm
+from uav_depth.daemon.rigwatch import RigWatch
 from uav_depth.daemon.mavlink_out import MavlinkLink, SendClock
 from uav_depth.daemon.notify import Notifier
 from uav_depth.daemon.ranging import Estimate, OutlierGate, RangeLimits, resolve_roi
@@ -99,11 +101,14 @@ class Service:
         self.clock: SendClock | None = None
         self.framelog: FrameLogger | None = None
         self.liveview: LiveView | None = None       # liveview.enabled: the read-only web page
+        self.rigwatch: RigWatch | None = None       # rig_check.interval_s > 0: the periodic rig check
+        self.obstacles: ObstacleSender | None = None  # obstacle_distance.enabled: OBSTACLE_DISTANCE
         self.state = "boot"
         self.camera_ok = False
         self.ended: str | None = None
         self.t0 = time.monotonic()
         self._mailbox = Mailbox()
+        self.frames_done = 0     # frames the stereo stage finished (processed, skipped or failed)
         self.capture = Capture(self.source, svc, self._mailbox, self._stopping, on_lost=self._camera_lost,
                                on_back=self._camera_back, on_end=self._source_ended,
                                in_source=self.health.in_source)
@@ -209,6 +214,11 @@ class Service:
         if cfg.liveview.enabled:
             c = self.calibration
             self.liveview = LiveView.bind(cfg.liveview, c.focal_px * c.baseline_m, self._view_status)
+        if cfg.rig_check.interval_s > 0:
+            self.rigwatch = RigWatch(cfg.rig_check, lambda text: self.link.statustext(text, "warning"))
+            self.rigwatch.start(self._stopping)
+        if cfg.obstacle_distance.enabled:
+            self.obstacles = self._obstacle_sender().start(self._stopping)
         for name, target in (("capture", self.capture.run), ("stereo", self._stereo_loop)):
             t = threading.Thread(target=target, name=name, daemon=True)
             self._threads[name] = t
@@ -218,6 +228,17 @@ class Service:
                                         since=self.stages.signature)
             self._watcher.start(self._stopping)
             log.info("watching %s for new parameters (%s)", cfg.params_file, "inotify + poll")
+
+    def _obstacle_sender(self) -> ObstacleSender:
+        c, clock, stype = self.calibration, self.clock, self.clock.sensor_type
+        lim = lambda: limits_cm(self._limits().min_distance_m, self._limits().max_distance_m)  # noqa: E731
+        return ObstacleSender(self.config.obstacle_distance, Field(c.width, c.focal_px, c.principal_point[0]),
+                              c.focal_px * c.baseline_m, self.config.ranging.max_age_ms / 1000.0,
+                              lambda: self.stage.params, lim,
+                              lambda r: self.link.send_measurement("OBSTACLE_DISTANCE", encoder(r, stype),
+                                                                   r.time_usec / 1e6 + clock.t_start,
+                                                                   self.config.ranging.max_age_ms / 1000.0),
+                              clock.t_start)
 
     def _view_status(self) -> dict[str, Any]:
         clock = self.clock
@@ -265,6 +286,7 @@ class Service:
                 log.exception("frame %d failed", frame.index)
             finally:
                 self.health.busy_since = None
+                self.frames_done += 1
 
     def _process(self, frame: Frame) -> None:
         stage = self.stage               # one read: a swap lands between frames, never inside one
@@ -275,22 +297,29 @@ class Service:
         t_rect = time.monotonic()
         result = stage.pipeline.run(left, right)
         t_disp = time.monotonic()
-        m = stage.ranger.measure(result)
+        m = self._gate.near(stage.ranger.measure(result), stage.ranger.limits.min_distance_m, frame.t_capture)
         t_done = time.monotonic()
         timings = {"queue": (t_start - frame.t_capture) * 1e3, "rectify": (t_rect - t_start) * 1e3,
                    "disparity": (t_disp - t_rect) * 1e3, "ranging": (t_done - t_disp) * 1e3,
                    "latency": (t_done - frame.t_capture) * 1e3}
         est = Estimate(m, stage.ranger.limits, frame.t_capture, t_done, frame.index, stage.hash, frame.truth_m,
-                       timings)
+                       timings, too_close=m.too_close)
         self.last_estimate = est
         if not m.valid:
-            self.estimate = est        # the newest frame measured nothing: say so at the next tick
+            self.estimate = est        # nothing measured (the wire goes blind), or too close: never held back
         elif self._gate.accept(m.distance_m, frame.t_capture):
             self.estimate = est
         # else: a single-frame jump, held back; the previous estimate ages out on its own
+        clock = self.clock
+        if clock is not None:
+            clock.notify()             # sent now, not at the next tick
         self.stats.add(t_done, timings)
         if self.liveview is not None:   # references only: nothing is drawn unless someone watches
             self.liveview.offer(left, result.disparity, est, self.roi, stage.params)
+        if self.rigwatch is not None:
+            self.rigwatch.offer(left, right)
+        if self.obstacles is not None:
+            self.obstacles.offer(left, right, frame.t_capture)
         if self.framelog is not None:
             self.framelog.consider(frame.index, left, right,
                                    frame_meta(frame, est, self.t0, self.config.source_kind, self.roi), frame.reference,
@@ -307,12 +336,23 @@ class Service:
         return status_line(self.stats, self.last_estimate, self.clock, stage.hash if stage else None,
                            self.camera_ok)
 
+    def _drain(self, stop: threading.Event) -> None:
+        """A finite source ended: let the frames in flight finish (bounded), then say what was dropped."""
+        deadline = time.monotonic() + self.config.service.stall_timeout_s
+        mb, delivered = self._mailbox, self.capture.frames_in
+        while self.frames_done + mb.dropped < delivered and time.monotonic() < deadline and not stop.wait(0.02):
+            pass
+        log.info("source delivered %d frames: %d processed, %d dropped (a newer frame replaced one not yet "
+                 "processed%s)", delivered, self.frames_done, mb.dropped,
+                 "" if getattr(self.source, "lossless", False) else "; source.lossless: true processes every frame")
+
     def run(self, stop: threading.Event) -> ShutdownReport:
         """Start, serve until ``stop`` is set (or a finite source ends), shut down. Raises on start-up failure."""
         self.startup(stop)
         try:
             while not stop.wait(0.1):
                 if self.ended:
+                    self._drain(stop)
                     break
                 if self._reload_now.is_set():
                     self._reload_now.clear()
@@ -343,6 +383,10 @@ class Service:
                 abandoned.append(f"the {name} thread{self.health.abandoned_detail(name)}")
         if self._watcher is not None and not self._watcher.join(left()):
             abandoned.append("the parameter watcher")
+        if self.obstacles is not None and not self.obstacles.join(left()):
+            abandoned.append("the obstacle pass")
+        if self.rigwatch is not None and not self.rigwatch.join(left()):
+            abandoned.append("the rig check")
         if self.liveview is not None and not self.liveview.close(left()):
             abandoned.append("the live view server")
         if self.framelog is not None:

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Callable
 
 from uav_depth.core.calibration import Calibration
-from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.core.disparity import DisparityPipeline, flight_pipeline
 from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError
 from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, load_params
 from uav_depth.daemon.ranging import Ranger, RangingConfig
@@ -71,7 +71,7 @@ def build_stage(params: StereoParams, origin: str, ranging: RangingConfig, calib
     warning = check_roi_against_compute(roi, params, calibration.width, calibration.height)
     if warning:
         log.warning("%s", warning)
-    return Stage(params, DisparityPipeline(params), ranger, origin)
+    return Stage(params, flight_pipeline(params), ranger, origin)
 
 
 class StageHolder:

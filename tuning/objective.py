@@ -62,8 +62,8 @@ def _ref(fn: Callable[[np.ndarray, np.ndarray], float]) -> Callable[[FrameData, 
                                                          frame.reference, res.disparity))
 
 
-def _branch(frame: FrameData, res: DisparityResult, params: StereoParams) -> float:
-    """The daemon's own ranging stage on this result, against the frame's truth."""
+def branch_measurement(frame: FrameData, res: DisparityResult, params: StereoParams) -> tuple[float | None, float]:
+    """The daemon's own ranging stage on this result: (distance m or None, error % against the frame's truth)."""
     from uav_depth.core.calibration import Calibration
     from uav_depth.daemon.ranging import RangingConfig
     from uav_depth.daemon.ranging import Ranger, resolve_roi
@@ -72,7 +72,12 @@ def _branch(frame: FrameData, res: DisparityResult, params: StereoParams) -> flo
     cal = Calibration(focal_px=frame.focal_px, baseline_m=frame.baseline_m, width=w, height=h)
     roi = resolve_roi(frame.roi, w, h)
     m = Ranger(RangingConfig(roi=roi), cal, roi, params).measure(res)
-    return metrics.branch_error(m.distance_m, frame.branch_distance_m)
+    return m.distance_m, metrics.branch_error(m.distance_m, frame.branch_distance_m)
+
+
+def _branch(frame: FrameData, res: DisparityResult, params: StereoParams) -> float:
+    """The daemon's own ranging stage on this result, against the frame's truth."""
+    return branch_measurement(frame, res, params)[1]
 
 
 def _selfsup(frame: FrameData, res: DisparityResult, params: StereoParams) -> float:

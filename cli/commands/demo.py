@@ -12,6 +12,8 @@ import argparse
 def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="uav-depth-demo", help="where to write the session (default ./uav-depth-demo)")
     p.add_argument("--frames", type=int, default=3, help="number of synthetic pairs (default 3)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing session there (else: refused, exit 73)")
     p.add_argument("--seed", type=int, default=0)
 
 
@@ -24,6 +26,9 @@ def run(args: argparse.Namespace) -> int:
         from uav_depth.tuning.evaluate import evaluate_frames, mean_scores
     except ImportError:
         evaluate_frames = None
+    from uav_depth.core.session import prepare_output
+
+    prepare_output(args.out, args.overwrite)
     write_session(args.out, args.frames, args.seed, SceneConfig())
     print(f"synthetic session: {args.out} ({args.frames} frames, 1280x720)")
     if evaluate_frames is None:

@@ -9,6 +9,8 @@ import time
 def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("outdir", help="session directory to write (created)")
     p.add_argument("--frames", type=int, default=10, help="number of stereo pairs (default 10)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing session there (else: refused, exit 73)")
     p.add_argument("--seed", type=int, default=0, help="seed: the same seed gives the same pixels (default 0)")
     p.add_argument("--width", type=int, default=1280, help="image width, px (default 1280)")
     p.add_argument("--height", type=int, default=720, help="image height, px (default 720)")
@@ -23,6 +25,7 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from uav_depth.core.errors import ConfigError
+    from uav_depth.core.session import prepare_output
     from uav_depth.sim.scene import SceneConfig, write_session
 
     if args.frames < 1:
@@ -32,6 +35,7 @@ def run(args: argparse.Namespace) -> int:
     if args.distance_m is not None:
         kw["branch_distance_m"] = args.distance_m
     base = SceneConfig(**kw)
+    prepare_output(args.outdir, args.overwrite)
     t0 = time.perf_counter()
     write_session(args.outdir, args.frames, args.seed, base, vary_scenes=not args.fixed_conditions,
                   fixed_distance=args.distance_m)

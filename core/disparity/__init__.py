@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 
 from uav_depth.core.disparity.confidence import lr_confidence
+from uav_depth.core.disparity.near import NearCheck, max_disparity_px, near_params
 from uav_depth.core.disparity.match import Matchers, build_matchers, match_left, match_right, to_float
 from uav_depth.core.disparity.prepare import Prepared, check_pair, prepare
 from uav_depth.core.disparity.result import DisparityResult, Laps
@@ -48,9 +49,10 @@ class DisparityPipeline:
     thread or process. Building is cheap (well under a millisecond).
     """
 
-    def __init__(self, params: StereoParams, refine: bool = True):
+    def __init__(self, params: StereoParams, refine: bool = True, near: bool = False):
         self.params = params
         self.refine = refine and params.wls.enabled
+        self._near = DisparityPipeline(near_params(params), refine=False) if near else None
         self.matchers: Matchers = build_matchers(params)
         m = self.matchers
         self.left_matcher, self.right_matcher, self.wls = m.left, m.right, m.wls
@@ -67,19 +69,32 @@ class DisparityPipeline:
         outside ``compute.roi`` disparities are NaN and confidence is 0. A window
         too narrow for the disparity search gives all-NaN maps (nothing matched).
         """
+        res, _, _ = self._run(left, right)
+        if self._near is None:
+            return res
+        laps = Laps()
+        near, _, _ = self._near._run(left, right)
+        check = NearCheck(near.measured, max_disparity_px(self.params))
+        laps.lap("near")
+        return DisparityResult(res.disparity, res.measured, res.confidence, res.warning,
+                               {**res.timings_ms, **laps.ms}, near=check, near_confidence=near.confidence)
+
+    def _run(self, left: np.ndarray, right: np.ndarray) -> tuple[DisparityResult, Window | None, Prepared | None]:
+        """One pass of the stages; also the window and prepared images (None when nothing was matched)."""
         laps = Laps()
         check_pair(left, right)
         h, w = left.shape[:2]
         if self._overflow is not None:
             warnings.warn(self._overflow, ParameterWarning, stacklevel=2)
             empty = np.full((h, w), np.nan, np.float32)
-            return DisparityResult(empty, empty.copy(), None, self._overflow)
+            return DisparityResult(empty, empty.copy(), None, self._overflow), None, None
         win = window(self.params, w, h)
         conf_full = None if self.right_matcher is None else np.zeros((h, w), np.float32)
         measured = np.full((h, w), np.nan, np.float32)
         if win.matched[0] <= search_span(self.params):    # narrower than the search: nothing can be matched
             laps.lap("prepare")
-            return DisparityResult(np.full((h, w), np.nan, np.float32), measured, conf_full, timings_ms=laps.ms)
+            return DisparityResult(np.full((h, w), np.nan, np.float32), measured, conf_full,
+                                   timings_ms=laps.ms), None, None
         prep = prepare(self.params.compute, win, left, right)
         laps.lap("prepare")
         left16 = match_left(self.matchers, prep.left_m, prep.right_m)
@@ -87,7 +102,7 @@ class DisparityPipeline:
         measured[win.outer()] = self._measured(win, left16)[win.inner()]
         if self.right_matcher is None:
             laps.lap("assemble")
-            return DisparityResult(measured, measured, None, timings_ms=laps.ms)
+            return DisparityResult(measured, measured, None, timings_ms=laps.ms), win, prep
         right16 = match_right(self.matchers, prep.left_m, prep.right_m)
         laps.lap("match_right")
         conf = self._confidence(win, left16, right16)
@@ -95,13 +110,13 @@ class DisparityPipeline:
         laps.lap("confidence")
         if not self.refine:
             laps.lap("assemble")
-            return DisparityResult(measured, measured, conf_full, timings_ms=laps.ms)
+            return DisparityResult(measured, measured, conf_full, timings_ms=laps.ms), win, prep
         filt = self._refine(win, prep, left16, right16)
         laps.lap("wls")
         disparity = np.full((h, w), np.nan, np.float32)
         disparity[win.outer()] = filt[win.inner()]
         laps.lap("assemble")
-        return DisparityResult(disparity, measured, conf_full, timings_ms=laps.ms)
+        return DisparityResult(disparity, measured, conf_full, timings_ms=laps.ms), win, prep
 
     def _measured(self, win: Window, left16: np.ndarray) -> np.ndarray:
         """The left matcher's disparities over the crop, input px."""
@@ -148,4 +163,10 @@ class DisparityPipeline:
         return self.run(left, right).disparity
 
 
-__all__ = ["DisparityPipeline", "DisparityResult", "check_pair"]
+def flight_pipeline(params: StereoParams) -> DisparityPipeline:
+    """What flies: the measured map, its confidence and the near check; no WLS smoothing (ranging
+    does not use it)."""
+    return DisparityPipeline(params, refine=False, near=True)
+
+
+__all__ = ["DisparityPipeline", "DisparityResult", "NearCheck", "check_pair", "flight_pipeline"]

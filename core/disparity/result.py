@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Mapping
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -22,7 +22,10 @@ class DisparityResult:
     :mod:`.confidence`), 0 outside the region, or None when the right matcher is
     off (``wls.enabled: false``). ``warning``: why the maps are empty when the
     parameters cannot be computed. ``timings_ms``: wall time of each stage of this
-    run (prepare, match_left, match_right, confidence, wls, assemble), ms.
+    run (prepare, match_left, match_right, confidence, wls, assemble, near), ms.
+    ``near``: the near check (:mod:`.near`) when the pipeline was built with
+    ``near=True``, else None; ``near_confidence``: the near pass's confidence map
+    (same layout as ``confidence``) to filter ``near.disparity`` with.
     """
 
     disparity: np.ndarray
@@ -30,6 +33,8 @@ class DisparityResult:
     confidence: np.ndarray | None
     warning: str | None = None
     timings_ms: Mapping[str, float] = field(default_factory=dict)
+    near: Any = None
+    near_confidence: np.ndarray | None = None
 
 
 class Laps:

@@ -12,6 +12,23 @@ from uav_depth.core.calibration import Calibration
 from uav_depth.core.errors import SourceError
 
 
+#: A device timestamp older than this (behind the host's receive time) is not believed.
+MAX_DEVICE_LAG_S = 2.0
+
+
+def device_capture_time(stamps: "list[float | None]", now: float, max_lag_s: float = MAX_DEVICE_LAG_S) -> float:
+    """The capture time of a pair from its devices' own timestamps (monotonic s), else ``now``.
+
+    ``stamps``: each eye's device timestamp on the host's CLOCK_MONOTONIC (depthai's
+    ``getTimestamp()``, V4L2 buffer timestamps), None where the device gave none. The
+    earliest plausible one wins (ages are then never understated); a stamp in the
+    future or more than ``max_lag_s`` behind ``now`` is on another clock and ignored.
+    ``now``: the host's time when the pair arrived, the fallback.
+    """
+    good = [t for t in stamps if t is not None and now - max_lag_s <= t <= now]
+    return min(good) if good else now
+
+
 class EndOfStream(SourceError):
     """A finite source (a replay without loop) has delivered its last frame."""
 

@@ -26,7 +26,7 @@ import numpy as np
 from uav_depth.core.calibration import Calibration
 from uav_depth.core.keys import Key, section_values
 from uav_depth.core.errors import DependencyError, SourceError
-from uav_depth.daemon.sources.base import Frame
+from uav_depth.daemon.sources.base import Frame, device_capture_time
 
 
 @dataclass(frozen=True)
@@ -155,7 +155,8 @@ class OakSource:
         seqs = {m.getSequenceNum() for m in msgs.values()}
         if len(seqs) != 1:
             return None
-        t_capture = time.monotonic()
+        # getTimestamp(): the end of exposure on the host's steady clock (CLOCK_MONOTONIC), synced by depthai
+        t_capture = device_capture_time([_stamp(msgs["left"]), _stamp(msgs["right"])], time.monotonic())
         left, right = msgs["left"].getFrame(), msgs["right"].getFrame()
         reference = None
         if "depth" in msgs:
@@ -169,3 +170,11 @@ class OakSource:
                      reference_source=({"kind": "device", "device": "oak", "note": "OAK StereoDepth depth, "
                                         "converted to disparity with the rectified calibration"}
                                        if reference is not None else None))
+
+
+def _stamp(msg: Any) -> float | None:
+    """A depthai ImgFrame's capture time in monotonic s (None when it has none)."""
+    try:
+        return msg.getTimestamp().total_seconds()
+    except (AttributeError, RuntimeError):
+        return None

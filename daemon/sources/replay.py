@@ -4,7 +4,9 @@ Pacing: ``rate_hz`` when given; otherwise the frames' recorded ``time_s`` (which
 daemon's frame logger writes) when every frame has one, else 10 Hz. The truth
 comes from each frame's ``branch_distance_m`` meta when present (synthetic
 sessions). Without ``loop`` the source ends after the last frame and the daemon
-stops cleanly.
+stops cleanly, once the frames in flight are processed. With ``lossless`` the capture
+thread waits for the pipeline instead of replacing an unprocessed frame (every frame
+is processed; the replay runs as fast as the pipeline, never faster than its pacing).
 """
 
 from __future__ import annotations
@@ -35,11 +37,14 @@ class Config:
         Key("rate_hz", "float", None, "frames per second; null: recorded time_s, else 10", 0.01, 1000.0,
             optional=True),
         Key("loop", "bool", False, "start again after the last frame (else the daemon stops)"),
+        Key("lossless", "bool", False, "process every frame: pacing waits for the pipeline instead of the "
+            "newest frame replacing one not yet processed (for evaluating a logged flight; not real time)"),
     )
 
     path: Path
     rate_hz: float | None = None
     loop: bool = False
+    lossless: bool = False
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], source: str | None = None, base_dir: Path | None = None,
@@ -56,6 +61,7 @@ class ReplaySource:
     def __init__(self, config: Config, clock: Callable[[], float] = time.monotonic,
                  stop_event: threading.Event | None = None, **_: Any):
         self.config = config
+        self.lossless = config.lossless     # read by the capture thread: wait for the pipeline
         self.clock = clock
         self._stop = stop_event or threading.Event()
         self.calibration: Calibration | None = None
@@ -67,7 +73,8 @@ class ReplaySource:
 
     def describe(self) -> str:
         rate = f"{self.config.rate_hz:g} fps" if self.config.rate_hz else "recorded timing"
-        return f"replay of {self.config.path} ({len(self._frames)} frames, {rate}{', looping' if self.config.loop else ''})"
+        extra = (", looping" if self.config.loop else "") + (", lossless" if self.lossless else "")
+        return f"replay of {self.config.path} ({len(self._frames)} frames, {rate}{extra})"
 
     def open(self) -> None:
         try:

@@ -27,7 +27,7 @@ import numpy as np
 from uav_depth.core.calibration import Calibration
 from uav_depth.core.keys import Key, section_values
 from uav_depth.core.errors import CalibrationError, ConfigError, SourceError
-from uav_depth.daemon.sources.base import Frame
+from uav_depth.daemon.sources.base import Frame, device_capture_time
 
 
 def _check_device(value: Any) -> str | None:
@@ -220,7 +220,10 @@ class UvcSource:
         # grab all, then decode: the two exposures are as close as V4L2 allows
         if not all(cap.grab() for cap in self._caps):
             raise SourceError(f"uvc: {device_path(self.config.device)} stopped delivering frames (unplugged?)")
-        t_capture = time.monotonic()
+        now = time.monotonic()
+        # V4L2 buffer timestamps (CLOCK_MONOTONIC for UVC) through CAP_PROP_POS_MSEC; a driver on another
+        # clock gives implausible values and the receive time is used instead
+        t_capture = device_capture_time([cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0 or None for cap in self._caps], now)
         images = []
         for cap in self._caps:
             ok, img = cap.retrieve()

@@ -192,9 +192,9 @@ def test_distance_sensor_tracks_the_approach(flight):
     assert vehicle.intervals.get(30) == pytest.approx(want_us, rel=1e-3), vehicle.intervals
 
     flight_readings = [(t, m) for t, m in vehicle.readings if t_fly <= t <= t_end]
-    # At the configured rate (a fixed clock, whatever the stereo loop costs).
+    # Each estimate as soon as it exists: the stereo rate (5 frames/s here), capped at rate_hz.
     rate = len(flight_readings) / (t_end - t_fly)
-    assert rate == pytest.approx(RATE_HZ, rel=0.10), f"{rate:.1f} Hz"
+    assert 2.0 <= rate <= RATE_HZ * 1.1, f"{rate:.1f} Hz"
     m0 = flight_readings[0][1]
     assert (m0.get_srcSystem(), m0.get_srcComponent()) != (1, 1) and m0.orientation == 0
 
@@ -221,9 +221,7 @@ def test_distance_sensor_tracks_the_approach(flight):
 
     # With the autopilot silent, no distance once its last pose is stale (pose timeout + max age).
     quiet = [m for t, m in vehicle.readings if t_end + POSE_TIMEOUT_S + MAX_AGE_MS / 1000.0 + 0.2 <= t <= t_quiet_end]
-    assert len(quiet) >= 10, "the daemon must keep its DISTANCE_SENSOR clock running, saying 'no measurement'"
-    stale = [m.current_distance for m in quiet if valid(m)]
-    assert not stale, f"distances sent without a fresh pose: {stale[:5]}"
+    assert not quiet, f"blind without a fresh pose: nothing may be sent, got {[m.current_distance for m in quiet][:5]}"
 
     # The truth log: the rendered truth matches the vehicle's geometry, the measurement the truth.
     with open(tmp_path / "truth.csv") as f:

@@ -1,6 +1,8 @@
 """MAVLink output against real pymavlink endpoints on loopback: fields, clock, subscriptions, signing, reconnects."""
 
+import os
 import socket
+import threading
 import time
 
 import pytest
@@ -9,6 +11,7 @@ from uav_depth.daemon.config import MavlinkConfig
 from uav_depth.core.errors import ConfigError
 from uav_depth.daemon.mavlink_out import (MavlinkLink, SendClock, distance_report, load_signing_key,
                                           orientation_code)
+from uav_depth.daemon.mavlink_enums import mavutil
 from uav_depth.daemon.ranging import Estimate, Measurement, RangeLimits
 
 from mavlink_peer import Receiver, free_port
@@ -23,20 +26,58 @@ def estimate(distance=1.234, sigma=0.01, quality=80, t_capture=10.0, limits=LIMI
 
 def test_fresh_estimate_fields():
     r = distance_report(estimate(), LIMITS, now=10.25, max_age_s=0.3, t_start=9.0)
-    assert r.valid and r.current_distance == 123 and (r.min_distance, r.max_distance) == (35, 1000)
-    assert r.covariance == 1 and r.signal_quality == 80 and r.time_boot_ms == 1250 and r.age_ms == 250
+    assert r.condition == "measuring" and r.sent and r.valid
+    assert r.current_distance == 123 and (r.min_distance, r.max_distance) == (33, 1000)   # min 0.345 m: 34 - 1
+    assert r.covariance == 1 and r.signal_quality == 80 and r.age_ms == 250
+    assert r.time_boot_ms == 1000                               # the capture time, not the send time
     assert (r.horizontal_fov, r.vertical_fov) == (0.6, 0.35)
     r = distance_report(estimate(sigma=0.05), LIMITS, now=10.1, max_age_s=0.3, t_start=9.0)
     assert r.covariance == 25                                   # (5 cm)^2
 
 
-@pytest.mark.parametrize("case", ["stale", "none", "no-measurement", "out-of-range"])
-def test_no_measurement_is_said_as_the_spec_says(case):
+def test_a_reading_at_the_minimum_goes_out_strictly_above_min_distance():
+    # issue 13 item 1: min 0.2749 m was rounded up to 28 cm and the reading to nearest (27): sent as max + 1
+    lim = RangeLimits(min_distance_m=0.2749, max_distance_m=10.0, hfov_rad=0.6, vfov_rad=0.35)
+    r = distance_report(estimate(0.2749, limits=lim), lim, 10.0, 0.3)
+    assert r.condition == "measuring" and r.current_distance == 27
+    assert r.min_distance < r.current_distance <= r.max_distance   # PX4 needs current > min
+
+
+@pytest.mark.parametrize("d,cm", [(1.2399, 123), (0.29, 29), (0.999999, 99), (2.0, 200), (0.345, 34)])
+def test_readings_are_rounded_down_never_farther(d, cm):
+    lim = RangeLimits(min_distance_m=0.2, max_distance_m=10.0, hfov_rad=0.6, vfov_rad=0.35)
+    if d == 0.345:
+        lim = LIMITS
+    assert distance_report(estimate(d, limits=lim), lim, 10.0, 0.3).current_distance == cm
+
+
+def test_too_close_is_the_nearest_value_both_autopilots_take_as_an_obstacle():
+    est = Estimate(Measurement(None, reason="too close"), LIMITS, 10.0, 10.05, 7, "abc", too_close=True)
+    r = distance_report(est, LIMITS, 10.1, 0.3)
+    assert r.condition == "too close" and r.sent and not r.valid
+    assert r.current_distance == r.min_distance + 1 == 34        # > min (PX4), within min..max (ArduPilot)
+    assert r.current_distance <= 100 * LIMITS.min_distance_m     # never farther than the minimum range
+    assert r.covariance == 255 and r.signal_quality != 1
+    # a reading below the wire's minimum is too close too, never dropped to "clear"
+    r = distance_report(estimate(0.30), LIMITS, 10.0, 0.3)
+    assert r.condition == "too close" and r.current_distance == 34
+
+
+@pytest.mark.parametrize("case,condition", [
+    ("stale", "stale"), ("none", "starting"), ("no-measurement", "nothing confident"),
+    ("out-of-range", "nothing confident"), ("camera lost", "camera lost"),
+    ("parameters unusable", "parameters unusable"), ("shutting down", "shutting down")])
+def test_blind_sends_nothing(case, condition):
     est = {"stale": estimate(t_capture=9.0), "none": None, "no-measurement": estimate(distance=None),
-           "out-of-range": estimate(distance=20.0)}[case]
-    r = distance_report(est, LIMITS, now=10.0, max_age_s=0.3, t_start=0.0)
-    assert not r.valid and r.signal_quality == 1 and r.covariance == 255
-    assert r.current_distance > r.max_distance                   # outside min..max, never a made-up distance
+           "out-of-range": estimate(distance=20.0)}.get(case, estimate())
+    blind = case if case in ("camera lost", "parameters unusable", "shutting down") else None
+    r = distance_report(est, LIMITS, now=10.0, max_age_s=0.3, blind=blind)
+    assert r.condition == condition and not r.sent and r.current_distance is None
+
+
+def test_signal_quality_is_never_1():
+    assert distance_report(estimate(quality=1), LIMITS, 10.0, 0.3).signal_quality == 2
+    assert distance_report(estimate(quality=100), LIMITS, 10.0, 0.3).signal_quality == 100
 
 
 def test_covariance_is_never_zero_and_huge_spread_saturates():
@@ -52,31 +93,63 @@ def test_orientation_code_rejects_nonsense():
         orientation_code(100)
 
 
-def test_send_clock_heartbeat_and_distance_on_a_real_endpoint():
+class Publisher:
+    """A stereo loop stand-in: a new estimate every ``period_s``, captured now (or blind when ``blind`` is set)."""
+
+    def __init__(self, period_s=0.02, distance=1.234):
+        self.est = None
+        self.blind = False
+        self.published = []
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._loop, args=(period_s, distance), daemon=True)
+        self._t.start()
+
+    def _loop(self, period_s, distance):
+        while not self._stop.wait(period_s):
+            now = time.monotonic()
+            self.est = estimate(distance=None if self.blind else distance, t_capture=now)
+            self.published.append(self.est)
+
+    def close(self):
+        self._stop.set()
+        self._t.join(1)
+
+
+def test_send_clock_sends_each_estimate_once_stamped_with_its_capture_time():
     port = free_port()
     peer = Receiver(f"udpin:127.0.0.1:{port}", sysid=255, compid=190)
-    cfg = MavlinkConfig(url=f"udpout:127.0.0.1:{port}", rate_hz=25, sensor_id=3, orientation="down",
+    cfg = MavlinkConfig(url=f"udpout:127.0.0.1:{port}", rate_hz=200, sensor_id=3, orientation="down",
                         sensor_type="radar")
     link = MavlinkLink(cfg).start()
-    now = time.monotonic
-    est = estimate(t_capture=now() + 3600)     # "captured in the future": fresh for the whole test
-    clock = SendClock(link, cfg, 0.3, estimate=lambda: est, limits=lambda: LIMITS, state=lambda: "active").start()
+    pub = Publisher()
+    clock = SendClock(link, cfg, 0.3, estimate=lambda: pub.est, limits=lambda: LIMITS, state=lambda: "active").start()
     try:
         ds = peer.wait_for("DISTANCE_SENSOR", count=30)
         hb = peer.wait_for("HEARTBEAT", count=1)
+        pub.blind = True                                           # the stereo loop measures nothing
+        time.sleep(0.2)
+        t_blind = time.monotonic()
+        time.sleep(0.5)
+        blind = peer.of("DISTANCE_SENSOR", since=t_blind)
+        told = peer.wait(lambda: "uav-depth: blind (nothing confident)" in peer.texts(), 5)
     finally:
         clock.stop()
+        pub.close()
         link.close()
         peer.close()
     m = ds[-1]
-    assert (m.current_distance, m.min_distance, m.max_distance) == (123, 35, 1000)
+    assert (m.current_distance, m.min_distance, m.max_distance) == (123, 33, 1000)
     assert (m.id, m.orientation, m.type, m.signal_quality, m.covariance) == (3, 25, 3, 80, 1)
     assert m.horizontal_fov == pytest.approx(0.6) and m.vertical_fov == pytest.approx(0.35)
     stamps = [x.time_boot_ms for x in ds]
-    assert all(b > a for a, b in zip(stamps, stamps[1:]))       # advances every message
+    assert all(b > a for a, b in zip(stamps, stamps[1:]))       # strictly increasing, never repeated
+    captured = {int(e.t_capture * 1000) & 0xFFFFFFFF for e in pub.published}
+    assert set(stamps) <= captured                               # each one an estimate's capture time
     assert (hb[0].type, hb[0].autopilot, hb[0].system_status) == (18, 8, 4)
     assert (m.get_srcSystem(), m.get_srcComponent()) == (1, 191)
     assert m.get_msgbuf()[0] == 0xFD                              # MAVLink 2
+    assert blind == []                                            # blind: nothing at all
+    assert told
 
 
 def test_subscribe_and_message_interval_over_the_same_connection():
@@ -166,3 +239,82 @@ def test_tcp_link_without_peer_never_blocks_and_reconnects():
         server.close()
     finally:
         assert link.close()
+
+
+def test_udpout_is_bound_to_loopback_and_hears_only_the_autopilot():
+    port = free_port()
+    peer = Receiver(f"udpin:127.0.0.1:{port}", sysid=1, compid=1, autopilot=True)
+    link = MavlinkLink(MavlinkConfig(url=f"udpout:127.0.0.1:{port}")).start()
+    got = []
+    link.subscribe("HEARTBEAT", got.append)
+    stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        assert link.wait_connected(2)
+        local = link._t.local
+        assert local[0] == "127.0.0.1"                              # never 0.0.0.0
+        link.heartbeat()
+        assert peer.wait(lambda: got, 5)                            # the autopilot is heard
+        enc = mavutil().mavlink.MAVLink(None, 42, 1)                # a stranger's valid HEARTBEAT to our port
+        n = len(got)
+        for _ in range(5):
+            stranger.sendto(enc.heartbeat_encode(2, 3, 0, 0, 4).pack(enc), local)
+            time.sleep(0.05)
+        time.sleep(0.3)
+        assert all(m.get_srcSystem() == 1 for m in got[n:])         # the kernel drops the stranger's datagrams
+    finally:
+        stranger.close()
+        link.close()
+        peer.close()
+
+
+def test_serial_link_through_a_pseudo_terminal():
+    master, slave = os.openpty()
+    link = MavlinkLink(MavlinkConfig(url=os.ttyname(slave), baud=57600)).start()
+    parser = mavutil().mavlink.MAVLink(None, 255, 0)
+    parser.robust_parsing = True
+    got = []
+    try:
+        assert link.wait_connected(2)
+        deadline = time.monotonic() + 5
+        os.set_blocking(master, False)
+        while not got and time.monotonic() < deadline:
+            link.heartbeat()
+            time.sleep(0.05)
+            try:
+                data = os.read(master, 4096)
+            except BlockingIOError:
+                continue
+            got += [m for m in parser.parse_buffer(data) or () if m.get_type() == "HEARTBEAT"]
+        assert got and (got[0].get_srcSystem(), got[0].get_srcComponent()) == (1, 191)
+    finally:
+        link.close()
+        os.close(master)
+        os.close(slave)
+
+
+def test_bytes_the_kernel_holds_past_their_deadline_are_discarded_with_a_reset():
+    # a TCP peer whose window is closed (tiny receive buffer, never reads, never answers TIMESYNC):
+    # what waits in our kernel would arrive old, so the connection is reset instead
+    port = free_port(socket.SOCK_STREAM)
+    cfg = MavlinkConfig(url=f"tcpin:127.0.0.1:{port}", rate_hz=200)
+    link = MavlinkLink(cfg).start()
+    pub = Publisher(period_s=0.005)
+    clock = SendClock(link, cfg, 0.2, estimate=lambda: pub.est, limits=lambda: LIMITS, state=lambda: "active").start()
+    peer = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    peer.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1024)
+    try:
+        assert link.wait_connected(2)
+        peer.connect(("127.0.0.1", port))
+        deadline = time.monotonic() + 20
+        while link.discards == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert link.discards >= 1
+        peer.settimeout(2)
+        with pytest.raises(ConnectionResetError):       # after what its buffer held: the reset
+            while peer.recv(65536):
+                pass
+    finally:
+        clock.stop()
+        pub.close()
+        link.close()
+        peer.close()

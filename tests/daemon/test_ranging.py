@@ -2,6 +2,7 @@
 
 import functools
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ from uav_depth.core.calibration import Calibration
 from uav_depth.daemon.ranging import RangingConfig
 from uav_depth.core.disparity import DisparityPipeline, DisparityResult
 from uav_depth.core.errors import ConfigError
-from uav_depth.core.params import DEFAULT_PARAMS
+from uav_depth.core.params import DEFAULT_PARAMS, load_params
 from uav_depth.daemon.ranging import OutlierGate, Ranger, default_roi, resolve_roi
 from uav_depth.sim.scene import Scene, SceneConfig
 
@@ -52,7 +53,7 @@ def test_wls_fill_in_is_never_ranged():
     measured = np.full((360, 640), np.nan, np.float32)
     filled = np.full((360, 640), 22.0, np.float32)      # WLS filled everything in
     m = ranger().measure(_result(measured, disparity=filled, confidence=np.ones_like(filled)))
-    assert not m.valid and "fewer than min_valid_px" in m.reason
+    assert not m.valid and "no object of 100 matched pixels" in m.reason
 
 
 def test_low_confidence_pixels_are_not_used():
@@ -130,15 +131,34 @@ def test_roi_must_fit_the_image():
         resolve_roi((0, 0, 700, 100), 640, 360)
 
 
-def test_outlier_gate_holds_a_single_jump_and_accepts_a_confirmed_one():
+def test_outlier_gate_holds_a_single_jump_away_and_accepts_a_confirmed_one():
     gate = OutlierGate(max_jump_rel=0.2, confirm_frames=2, forget_s=1.0)
     assert gate.accept(1.00, 0.0) and gate.accept(1.02, 0.1)
-    assert not gate.accept(2.00, 0.2)          # a single-frame jump is held back
+    assert not gate.accept(2.00, 0.2)          # a single-frame jump away is held back
     assert gate.accept(1.01, 0.3)              # and forgotten when the next frame agrees with history
-    assert not gate.accept(0.60, 0.4)
-    assert gate.accept(0.61, 0.5)              # confirmed by a second frame: accepted
+    assert not gate.accept(1.60, 0.4)
+    assert gate.accept(1.61, 0.5)              # confirmed by a second frame: accepted
     assert gate.accept(3.0, 2.0)               # after forget_s without data, anything goes
     assert OutlierGate(0.0, 2).accept(1.0, 0.0) and OutlierGate(0.0, 2).accept(5.0, 0.1)
+
+
+def test_outlier_gate_lets_a_nearer_reading_through_at_once():
+    """For a drone a sudden nearer object must win now: only a jump away needs confirming."""
+    gate = OutlierGate(max_jump_rel=0.2, confirm_frames=3, forget_s=1.0)
+    assert gate.accept(2.0, 0.0)
+    assert gate.accept(0.6, 0.1)               # 70 % nearer, first frame: accepted
+    assert gate.accept(0.3, 0.2)
+    assert not gate.accept(0.9, 0.3)           # back away: held
+    assert gate.accept(0.25, 0.4)              # nearer again: at once, and the pending jump is dropped
+    assert not gate.accept(0.9, 0.5) and not gate.accept(0.9, 0.6) and gate.accept(0.9, 0.7)
+
+
+def test_outlier_gate_after_too_close_holds_a_jump_away():
+    gate = OutlierGate(max_jump_rel=0.2, confirm_frames=2, forget_s=1.0)
+    assert gate.accept(0.5, 0.0)
+    gate.too_close(0.28, 0.1)
+    assert not gate.accept(1.5, 0.2)           # from "nearer than 0.28 m" to 1.5 m in one frame: held
+    assert gate.accept(0.3, 0.3)
 
 
 def test_surface_quantile_reads_the_near_side_of_a_round_branch():
@@ -153,3 +173,127 @@ def test_surface_quantile_reads_the_near_side_of_a_round_branch():
     near = ranger(RangingConfig()).measure(_result(d)).distance_m
     assert median - 1.0 == pytest.approx(r * (1 - math.sqrt(0.75)), abs=1e-3)
     assert abs(near - 1.0) < 1.5e-3 < median - 1.0
+
+
+# -- the rules of issue 11: too close, metric thresholds, quality floor ------------------------------------------
+
+FLIGHT_FILE = Path(__file__).resolve().parents[2] / "deploy" / "params-flight.yaml"
+
+
+@functools.lru_cache(maxsize=None)
+def _flight_frame(distance: float, seed: int):
+    cfg = SceneConfig(seed=seed, branch_distance_m=distance, branch_radius_m=0.03)
+    return cfg, Scene(cfg).render(rng=np.random.default_rng(seed))
+
+
+def test_a_branch_inside_the_minimum_range_is_too_close_never_a_farther_distance():
+    """Flight file (minimum range 0.279 m at 1280x720, f = 700): a branch at 0.20 m used to read 0.35 m."""
+    from uav_depth.core.disparity import flight_pipeline
+
+    flight = load_params(FLIGHT_FILE)
+    cfg, frame = _flight_frame(0.20, 0)
+    r = Ranger(RangingConfig(), cfg.calibration, cfg.center_roi, flight)
+    assert r.limits.min_distance_m == pytest.approx(0.2791, abs=1e-4)
+    m = r.measure(flight_pipeline(flight).run(frame.left, frame.right))
+    assert m.too_close and m.distance_m is None, m
+    assert "near pass" in m.reason
+
+
+def test_without_the_near_pass_the_same_frame_is_not_reported_as_a_distance_either():
+    """The matcher alone (no near check) must not turn the near branch into a valid farther reading:
+    the quality floor drops it (it scored 9 on this frame)."""
+    flight = load_params(FLIGHT_FILE)
+    cfg, frame = _flight_frame(0.20, 0)
+    m = Ranger(RangingConfig(), cfg.calibration, cfg.center_roi, flight).measure(
+        DisparityPipeline(flight, refine=False).run(frame.left, frame.right))
+    assert not m.valid and not m.too_close and "min_quality" in m.reason
+
+
+def test_the_flight_pipeline_still_ranges_a_branch_just_outside_the_minimum_range():
+    from uav_depth.core.disparity import flight_pipeline
+
+    flight = load_params(FLIGHT_FILE)
+    cfg, frame = _flight_frame(0.30, 0)
+    m = Ranger(RangingConfig(), cfg.calibration, cfg.center_roi, flight).measure(
+        flight_pipeline(flight).run(frame.left, frame.right))
+    assert m.valid and not m.too_close and m.distance_m == pytest.approx(0.30, rel=0.02)
+
+
+def test_an_object_piled_at_the_end_of_the_search_is_too_close():
+    fb = 350.0 * 0.063
+    d = np.full((360, 640), fb / 2.0, np.float32)       # a wall at 2 m
+    d[130:230, 250:400] = 63.0                           # an object at the search's last disparity (64 - 1)
+    m = ranger().measure(_result(d))
+    assert m.too_close and not m.valid and "search's end" in m.reason
+    d[130:230, 250:400] = 61.0                           # two pixels inside the search: a distance
+    m = ranger().measure(_result(d))
+    assert m.valid and m.distance_m == pytest.approx(fb / 61.0, rel=1e-3)
+
+
+def test_near_pass_evidence_makes_too_close():
+    """Result maps built by hand: the near pass matched 30 % of the ROI beyond the main search."""
+    from uav_depth.core.disparity.near import NearCheck
+
+    fb = 350.0 * 0.063
+    measured = np.full((360, 640), fb / 0.5, np.float32)          # the main pass: something at 0.5 m
+    near = np.full((360, 640), np.nan, np.float32)
+    near[120:156, 213:426] = 90.0                                  # 30 % of the ROI's rows at 0.245 m
+    res = DisparityResult(measured, measured, None, near=NearCheck(near, 63.0))
+    m = ranger().measure(res)
+    assert m.too_close and "near pass" in m.reason
+    near[120:132, 213:426] = 90.0
+    near[132:156] = np.nan                                         # 10 %: not enough evidence
+    m = ranger().measure(DisparityResult(measured, measured, None, near=NearCheck(near, 63.0)))
+    assert m.valid and m.distance_m == pytest.approx(0.5, rel=1e-3)
+
+
+def test_a_blank_frame_right_after_too_close_stays_too_close():
+    gate = OutlierGate(max_jump_rel=0.2, confirm_frames=2, forget_s=1.0)
+    from uav_depth.daemon.ranging import Measurement
+
+    blank = Measurement(None, valid_fraction=0.01, reason="nothing matched")
+    assert not gate.near(blank, 0.28, 0.0).too_close               # blank from the start: no measurement
+    gate.near(Measurement(None, too_close=True, reason="near pass"), 0.28, 0.1)
+    assert gate.near(blank, 0.28, 0.2).too_close                   # the object now fills the view
+    assert gate.near(blank, 0.28, 1.1).too_close                   # still, frame after frame
+    assert not gate.near(blank, 0.28, 2.5).too_close               # forget_s without evidence: unknown
+    sparse = Measurement(None, valid_fraction=0.5, reason="no object")
+    gate.near(Measurement(None, too_close=True, reason="near pass"), 0.28, 3.0)
+    assert not gate.near(sparse, 0.28, 3.1).too_close              # half the ROI measured: not blank
+
+
+def test_min_valid_px_counts_matched_pixels_at_any_scale():
+    """At compute.scale 0.5 one matched pixel is 4 input pixels: 60 matched pixels (240 input) stay
+    fewer than min_valid_px 100 (the old rule counted 240 input pixels and made them an object)."""
+    half = PARAMS.replace(**{"compute.scale": 0.5})
+    fb = 350.0 * 0.063
+    d = np.full((360, 640), fb / 2.0, np.float32)       # a wall at 2 m
+    d[150:162, 300:320] = fb / 0.5                       # 240 input px = 60 matched px at 0.5 m
+    m = ranger(params=half).measure(_result(d))
+    assert m.distance_m == pytest.approx(2.0, rel=1e-3)
+    d[150:170, 300:340] = fb / 0.5                       # 800 input px = 200 matched px: an object
+    assert ranger(params=half).measure(_result(d)).distance_m == pytest.approx(0.5, rel=1e-3)
+
+
+def test_a_near_object_needs_its_metric_area():
+    """Near the camera 100 pixels are a small area: the object must also show min_object_m2 (2 cm^2)."""
+    fb = 350.0 * 0.063
+    d = np.full((360, 640), fb / 2.0, np.float32)       # a wall at 2 m
+    d[150:162, 300:310] = fb / 0.4                       # 120 px at 0.4 m: 120 * (0.4/350)^2 = 1.6 cm^2
+    cfg = RangingConfig()
+    assert cfg.min_object_m2 == pytest.approx(2e-4) and cfg.min_valid_px == 100
+    m = ranger(cfg).measure(_result(d))
+    assert m.distance_m == pytest.approx(2.0, rel=1e-3)
+    d[150:170, 300:310] = fb / 0.4                       # 200 px: 2.6 cm^2, an object
+    m = ranger(cfg).measure(_result(d))
+    assert m.distance_m == pytest.approx(0.4, rel=1e-3)
+
+
+def test_readings_below_the_quality_floor_are_no_measurement():
+    fb = 350.0 * 0.063
+    d = np.full((360, 640), np.nan, np.float32)
+    d[120:150, 213:426] = fb / 1.0                       # 25 % of the ROI measured: quality 25
+    m = ranger(RangingConfig(min_quality=40)).measure(_result(d))
+    assert not m.valid and m.quality == 25 and "below min_quality 40" in m.reason
+    m = ranger(RangingConfig(min_quality=20)).measure(_result(d))
+    assert m.valid and m.quality == 25

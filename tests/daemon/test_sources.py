@@ -13,6 +13,7 @@ from uav_depth.core.rectify import Rectifier
 from uav_depth.sim.scene import Pose, SceneConfig, write_session
 from uav_depth.cli.sources import SOURCES
 from uav_depth.daemon.sources import EndOfStream, create_source
+from uav_depth.daemon.sources.base import device_capture_time
 from uav_depth.sim.source import SyntheticSource
 from uav_depth.daemon.sources.uvc import read_zed_conf, split_side_by_side
 
@@ -215,3 +216,78 @@ def test_zed_calibration_file(tmp_path):
         read_zed_conf(path, 1000, 720)
     with pytest.raises(CalibrationError, match=r"no \[LEFT_CAM_VGA\] section"):
         read_zed_conf(path, 672, 376)
+
+
+def test_device_capture_time_takes_the_earliest_plausible_device_stamp():
+    assert device_capture_time([99.95, 99.97], now=100.0) == 99.95        # the older eye: ages never understated
+    assert device_capture_time([None, 99.9], now=100.0) == 99.9
+    assert device_capture_time([None], now=100.0) == 100.0                 # no device stamp: the receive time
+    assert device_capture_time([100.5], now=100.0) == 100.0                # in the future: another clock
+    assert device_capture_time([1.7e9], now=100.0) == 100.0                # wall clock, not monotonic
+    assert device_capture_time([90.0], now=100.0) == 100.0                 # far behind: relative to something else
+
+
+class FakeCapture:
+    """The hardware boundary of UvcSource: cv2.VideoCapture, with a V4L2 buffer timestamp (ms)."""
+
+    def __init__(self, stamp_ms, image):
+        self.stamp_ms, self.image = stamp_ms, image
+
+    def set(self, prop, value):
+        return True
+
+    def get(self, prop):
+        import cv2
+
+        return self.stamp_ms if prop == cv2.CAP_PROP_POS_MSEC else 0.0
+
+    def grab(self):
+        return True
+
+    def retrieve(self):
+        return True, self.image
+
+
+def test_uvc_frames_carry_the_v4l2_buffer_timestamp():
+    src = create_source(source_config(kind="uvc", device="/dev/video97", right_device="/dev/video96",
+                                      width=16, height=16, grey=False))
+    img = np.zeros((16, 16, 3), np.uint8)
+    t = time.monotonic()
+    src._caps = [FakeCapture((t - 0.040) * 1000.0, img), FakeCapture((t - 0.035) * 1000.0, img)]
+    frame = src.read(0.1)
+    assert frame.t_capture == pytest.approx(t - 0.040, abs=1e-6)           # 40 ms before the host got it
+    src._caps = [FakeCapture(0.0, img), FakeCapture(0.0, img)]              # a driver without timestamps
+    before = time.monotonic()
+    assert before <= src.read(0.1).t_capture <= time.monotonic()
+
+
+class FakeImgFrame:
+    def __init__(self, t, seq=7):
+        self.t, self.seq = t, seq
+
+    def getTimestamp(self):
+        import datetime
+
+        return datetime.timedelta(seconds=self.t)
+
+    def getSequenceNum(self):
+        return self.seq
+
+    def getFrame(self):
+        return np.zeros((4, 8), np.uint8)
+
+
+class FakeQueue:
+    def __init__(self, msg):
+        self.msg = msg
+
+    def get(self, timeout):
+        return self.msg
+
+
+def test_oak_frames_carry_the_device_timestamp():
+    src = create_source(source_config(kind="oak"))
+    t = time.monotonic()
+    src._pipeline = type("Running", (), {"isRunning": lambda self: True})()
+    src._queues = {"left": FakeQueue(FakeImgFrame(t - 0.030)), "right": FakeQueue(FakeImgFrame(t - 0.030))}
+    assert src.read(0.1).t_capture == pytest.approx(t - 0.030, abs=1e-6)

@@ -289,3 +289,14 @@ def test_rectification_error_shifts_right_rows_by_the_set_amount(shift):
 def test_bad_foliage_and_camera_keys(key, value, msg):
     with pytest.raises(ConfigError, match=msg):
         SceneConfig.from_dict({key: value})
+
+
+def test_culled_leafy_render_equals_full_frame_cast(monkeypatch):
+    """Twigs, small branches, sky and shadows go through the same culling: it must drop no hit."""
+    cfg = SceneConfig.leafy(seed=6, width=320, height=180, focal_px=175.0, branch_distance_m=0.7, fascicles=0)
+    fast = Scene(cfg).render(rng=np.random.default_rng(1))
+    monkeypatch.setattr(Scene, "_candidates", lambda self, cyl, o, rot: None)
+    full = Scene(cfg).render(rng=np.random.default_rng(1))
+    assert (fast.labels == 3).sum() > 50
+    for name in ("left", "right", "labels", "objects", "depth"):
+        assert np.array_equal(getattr(fast, name), getattr(full, name)), name
