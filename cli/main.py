@@ -13,6 +13,7 @@ import importlib
 import sys
 from typing import Sequence
 
+from uav_depth.cli.signals import SIGNALS
 from uav_depth.core.errors import CalibrationError, ConfigError, DependencyError, OutputExistsError, UavDepthError
 
 #: Exit codes. EXIT_CONFIG is sysexits' EX_CONFIG: the systemd unit lists it in
@@ -21,6 +22,8 @@ EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_CONFIG = 0, 1, 2, 130, 7
 #: sysexits' EX_UNAVAILABLE: `run` could not find its camera at start-up. Not in
 #: RestartPreventExitStatus, so systemd retries until the camera appears.
 EXIT_UNAVAILABLE = 69
+#: Subcommands that run the daemon: their signal handlers go in before anything else is imported.
+DAEMONS = ("run", "sitl")
 #: sysexits' EX_CANTCREAT: an output exists (a session) and --overwrite was not given.
 EXIT_CANTCREAT = 73
 
@@ -37,6 +40,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("uav_depth.cli.commands.run", "the on-board daemon: stereo -> branch distance -> MAVLink DISTANCE_SENSOR"),
     "sitl": ("uav_depth.cli.commands.sitl",
              "fly the daemon against a simulated autopilot: synthetic stereo rendered from its pose"),
+    "session": ("uav_depth.cli.commands.session", "make a session (log layout) from a folder of stereo pairs"),
     "check-rig": ("uav_depth.cli.commands.check_rig",
                   "measure the stereo rig's vertical misalignment (is it still rectified? can SGBM work?)"),
     "sources": ("uav_depth.cli.commands.sources", "list the frame sources run accepts (and probe for hardware)"),
@@ -45,7 +49,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The whole parser; with ``only``, just that subcommand's module is imported and configured
+    (``uav-depth run`` need not import the tuner to parse its arguments)."""
     from uav_depth.core import __version__
 
     parser = argparse.ArgumentParser(
@@ -55,13 +61,16 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
-        importlib.import_module(module).configure(p)
+        if only is None or name == only:
+            importlib.import_module(module).configure(p)
         p.set_defaults(_module=module)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    words = list(sys.argv[1:] if argv is None else argv)
+    command = next((w for w in words if not w.startswith("-")), None)
+    parser = build_parser(command if command in COMMANDS else None)
     args = parser.parse_args(argv)
     try:
         return int(importlib.import_module(args._module).run(args) or 0)
@@ -90,6 +99,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def entry() -> None:  # console_scripts target
+    if sys.argv[1:2] and sys.argv[1] in DAEMONS:
+        SIGNALS.install(at_exec=True)   # before the subcommand table and any slow import (see cli.signals)
     sys.exit(main())
 
 

@@ -15,8 +15,9 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from uav_depth.core.errors import CalibrationError, ConfigError
+from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError
 from uav_depth.core.fileio import atomic_write_text
+from uav_depth.core.yamlfile import load_yaml_file
 
 
 @dataclass(frozen=True)
@@ -111,11 +112,9 @@ def calibration_from_dict(data: Any, source: str | None = None) -> Calibration:
 def load_calibration(path: str | os.PathLike[str]) -> Calibration:
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
-    except FileNotFoundError as exc:
-        raise CalibrationError(f"{path}: calibration file not found") from exc
-    except yaml.YAMLError as exc:
-        raise CalibrationError(f"{path}: calibration is not valid YAML: {exc}") from exc
+        data = load_yaml_file(path, "calibration file")
+    except FileFormatError as exc:
+        raise CalibrationError(str(exc)) from exc
     return calibration_from_dict(data, source=str(path))
 
 

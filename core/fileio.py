@@ -6,6 +6,8 @@ import os
 import tempfile
 from pathlib import Path
 
+from uav_depth.core.errors import FileFormatError
+
 
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
     """Replace ``path`` with ``text`` atomically (same-directory temp, fsync, rename)."""
@@ -33,3 +35,33 @@ def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
     except OSError:  # some filesystems cannot fsync a directory; the rename is still atomic
         pass
     return path
+
+
+def read_text_file(path: str | os.PathLike[str], what: str) -> str:
+    """The UTF-8 text of ``path``; every way it cannot be read is one FileFormatError naming ``what``.
+
+    ``what``: what the file should be ("parameter file", "config", ...). Missing,
+    a directory, no permission, not UTF-8 or binary (NUL bytes): the message says
+    which, with the byte offset where the text is broken.
+    """
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError as exc:
+        raise FileFormatError(f"{path}: {what} not found") from exc
+    except IsADirectoryError as exc:
+        raise FileFormatError(f"{path}: {what} is a directory, not a file") from exc
+    except PermissionError as exc:
+        raise FileFormatError(f"{path}: cannot read {what}: permission denied for this user "
+                              f"(uid {os.getuid()})") from exc
+    except OSError as exc:
+        raise FileFormatError(f"{path}: cannot read {what} ({exc.strerror or exc})") from exc
+    nul = raw.find(b"\0")
+    if nul >= 0:
+        raise FileFormatError(f"{path}: {what} is a binary file, not text (NUL byte at offset {nul})")
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise FileFormatError(f"{path}: {what} is not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset "
+                              f"{exc.start}, line {line})") from exc

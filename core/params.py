@@ -24,8 +24,9 @@ from typing import Any, Mapping
 import yaml
 
 from uav_depth.core.fileio import atomic_write_text
-from uav_depth.core.errors import ConfigError, FileFormatError
+from uav_depth.core.errors import ConfigError
 from uav_depth.core.validate import fmt, in_range, number
+from uav_depth.core.yamlfile import load_yaml_file
 
 #: OpenCV's SGBM stores P1, P2 and path costs in 16-bit signed integers (CostType
 #: is short). A penalty above this wraps around and the matcher returns garbage.
@@ -310,27 +311,60 @@ def disparity_search_range(focal_px: float, baseline_m: float, near_m: float, fa
             SPEC_BY_KEY["sgbm.num_disparities"].check(num, "disparity_search_range"))
 
 
+def check_computable(params: StereoParams, source: str | None = None) -> StereoParams:
+    """Refuse parameters OpenCV cannot compute with, whatever the image: penalties over its 16-bit cost range.
+
+    The schema's bounds for p1/p2 are the paper's search ranges (the faithful tuner
+    explores them, and the pipeline answers an overflow with an all-NaN map); a file
+    the daemon flies or ``params check`` passes must also satisfy this.
+    """
+    sg = params.sgbm
+    for key, value in (("sgbm.p1", sg.p1), ("sgbm.p2", sg.p2)):
+        if value > OPENCV_COST_MAX:
+            raise ConfigError(key, f"must be at most {OPENCV_COST_MAX} (OpenCV's SGBM keeps costs in 16-bit "
+                                   "integers; above it they wrap and nothing is measured)", value, source)
+    return params
+
+
+def check_image_size(params: StereoParams, width: int, height: int, source: str | None = None) -> None:
+    """Refuse parameters that cannot match anything in a ``width`` x ``height`` input image.
+
+    OpenCV's SGBM refuses an image whose matched width is not more than
+    min_disparity + num_disparities + block_size // 2 (matched pixels, i.e. the input
+    times ``compute.scale``), and computes a disparity only for columns x with
+    min_disparity + num_disparities <= x; its block must fit the image.
+    """
+    sg, scale = params.sgbm, params.compute.scale
+    mw, mh = int(round(width * scale)), int(round(height * scale))
+    reach = sg.min_disparity + sg.num_disparities
+    if mw - reach <= sg.block_size // 2:
+        raise ConfigError("sgbm.num_disparities", f"must leave columns to match: sgbm.min_disparity + "
+                          f"sgbm.num_disparities + sgbm.block_size // 2 must be below the matched image width "
+                          f"{mw} px ({width} px x compute.scale {scale:g})", sg.num_disparities, source)
+    if sg.block_size > min(mw, mh):
+        raise ConfigError("sgbm.block_size", f"must fit the matched image ({mw}x{mh} px)", sg.block_size, source)
+
+
 def load_params(path: str | os.PathLike[str]) -> StereoParams:
-    """Read and validate a parameter file. Errors name the file, key, rule and value."""
+    """Read and validate a parameter file. Errors name the file, key, rule and value.
+
+    Stricter than :func:`params_from_dict`: the file must be UTF-8 YAML with no key
+    given twice, must set at least one section (an empty file is an error, not the
+    defaults), and must pass :func:`check_computable`.
+    """
     path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError as exc:
-        raise FileFormatError(f"{path}: parameter file not found") from exc
-    except OSError as exc:
-        raise FileFormatError(f"{path}: cannot read parameter file ({exc.strerror})") from exc
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        raise FileFormatError(f"{path}: not valid YAML{where}: {getattr(exc, 'problem', exc)}") from exc
-    return params_from_dict(data, source=str(path))
+    data = load_yaml_file(path, "parameter file")
+    params = params_from_dict(data, source=str(path))
+    if data is None or not any(k in SECTIONS for k in data):
+        raise ConfigError("(file)", f"must set at least one section ({', '.join(SECTIONS)}); an empty file is "
+                          "not taken as the defaults (write them with: uav-depth params default)",
+                          "" if data is None else data, str(path))
+    return check_computable(params, str(path))
 
 
 def read_provenance(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The ``provenance`` mapping of a parameter file ({} when absent)."""
-    data = yaml.safe_load(Path(path).read_text()) or {}
+    data = load_yaml_file(path, "parameter file") or {}
     prov = data.get("provenance") if isinstance(data, Mapping) else None
     return dict(prov) if isinstance(prov, Mapping) else {}
 

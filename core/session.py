@@ -31,6 +31,7 @@ import numpy as np
 
 from uav_depth.core.calibration import Calibration, load_calibration, save_calibration
 from uav_depth.core.errors import FileFormatError, OutputExistsError
+from uav_depth.core.fileio import read_text_file
 
 CALIBRATION_FILE = "calibration.yaml"
 FRAMES_DIR = "frames"
@@ -189,7 +190,7 @@ class FrameRecord:
         if not self.meta_path.exists():
             return {}
         try:
-            return json.loads(self.meta_path.read_text())
+            return json.loads(read_text_file(self.meta_path, "frame metadata"))
         except json.JSONDecodeError as exc:
             raise FileFormatError(f"{self.meta_path}: not valid JSON ({exc})") from exc
 

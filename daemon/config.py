@@ -26,7 +26,7 @@ from typing import Any, Callable, Mapping
 import yaml
 
 from uav_depth.core.calibration import Calibration, calibration_from_dict, load_calibration
-from uav_depth.core.errors import ConfigError, FileFormatError
+from uav_depth.core.errors import ConfigError
 from uav_depth.core.keys import Key, section_values
 from uav_depth.daemon.liveview import LiveViewConfig
 from uav_depth.daemon.mavlink_enums import orientation_code
@@ -35,6 +35,7 @@ from uav_depth.daemon.ranging import RangingConfig
 from uav_depth.daemon.rigwatch import RigCheckConfig
 from uav_depth.daemon.sources import BUILTIN, SourceTable, source_config_from_dict, source_keys
 from uav_depth.core.validate import fmt, in_range, number
+from uav_depth.core.yamlfile import load_yaml_file
 
 log = logging.getLogger("uav_depth.config")
 
@@ -129,6 +130,7 @@ class LoggingConfig:
     dir: Path | None = None
     every_n: int = 10
     max_mb: float = 2000.0
+    min_free_mb: float = 500.0
     queue_frames: int = 4
 
     KEYS = (
@@ -137,6 +139,8 @@ class LoggingConfig:
         Key("every_n", "int", 10, "log every Nth processed frame; 0: only on demand (SIGUSR1)", 0, 1_000_000),
         Key("max_mb", "float", 2000.0, "disk budget of the whole directory, MB; oldest sessions are removed first",
             1.0, 10_000_000.0),
+        Key("min_free_mb", "float", 500.0, "free-space floor of the log's file system, MB: logging stops (the "
+            "daemon flies on) rather than take the disk below it", 0.0, 1.0e9),
         Key("queue_frames", "int", 4, "frames waiting for the writer; more are dropped, never waited for", 1, 1000),
     )
 
@@ -223,7 +227,7 @@ def run_config_from_dict(data: Any, source: str | None = None, base_dir: Path | 
                          origin: Mapping[str, str] | None = None, sources: SourceTable = BUILTIN) -> RunConfig:
     """Validate a nested mapping into a :class:`RunConfig`.
 
-    Relative paths (calibration, params_file, logging.dir, replay path) are taken
+    Relative paths (calibration, params_file, logging.dir, mavlink.signing_key_file, replay path) are taken
     relative to ``base_dir`` (the config file's directory). ``sources``: the frame
     source kinds accepted (the CLI adds the simulator's to the runtime's own).
     """
@@ -231,11 +235,12 @@ def run_config_from_dict(data: Any, source: str | None = None, base_dir: Path | 
         data = {}
     if not isinstance(data, Mapping):
         raise ConfigError("(top level)", "must be a mapping of sections", type(data).__name__, source)
-    for top in data:
-        if top not in TOP_KEYS:
-            raise ConfigError(str(top), f"is not a known section (known: {', '.join(TOP_KEYS)})", data[top], source)
     origin = dict(origin or {})
     src = lambda key: origin.get(key, source)  # noqa: E731  where a key's value came from
+    for top in data:
+        if top not in TOP_KEYS:
+            raise ConfigError(str(top), f"is not a known section (known: {', '.join(TOP_KEYS)})", data[top],
+                              src(str(top)))
     if data.get("source") is None:
         raise ConfigError("source", f"is required (a mapping with kind: {', '.join(sources)})", None, source)
     source_cfg = source_config_from_dict(data["source"], source, base_dir, origin, sources)
@@ -248,6 +253,9 @@ def run_config_from_dict(data: Any, source: str | None = None, base_dir: Path | 
                 for name, cls in SECTION_CLASSES.items()}
     if sections["logging"].dir is not None and not sections["logging"].dir.is_absolute() and base_dir is not None:
         sections["logging"] = replace(sections["logging"], dir=base_dir / sections["logging"].dir)
+    key_file = sections["mavlink"].signing_key_file
+    if key_file is not None and not key_file.is_absolute() and base_dir is not None:
+        sections["mavlink"] = replace(sections["mavlink"], signing_key_file=base_dir / key_file)
     mav = sections["mavlink"]
     if (mav.system_id, mav.component_id) == (1, 1):
         raise ConfigError("mavlink.component_id", "must not be 1 when system_id is 1 (ArduPilot drops messages "
@@ -296,20 +304,12 @@ def _set_dotted(data: dict[str, Any], dotted: str, value: Any) -> None:
 
 
 def read_config_file(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The config file as a mapping ({} when empty). Unreadable, not UTF-8 text, not YAML, a key given
+    twice: one FileFormatError or ConfigError naming the file."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError as exc:
-        raise ConfigError("--config", "must name an existing file", str(path)) from exc
-    except OSError as exc:
-        raise FileFormatError(f"{path}: cannot read config ({exc.strerror})") from exc
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        raise ConfigError("(file)", f"must be valid YAML{where}", getattr(exc, "problem", str(exc)),
-                          str(path)) from exc
+    if not path.exists() and not path.is_symlink():
+        raise ConfigError("--config", "must name an existing file", str(path))
+    data = load_yaml_file(path, "config")
     if data is None:
         return {}
     if not isinstance(data, Mapping):

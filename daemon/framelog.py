@@ -8,8 +8,12 @@ matched. Each run writes one session directory ``YYYYmmdd-HHMMSS-<source>``.
 
 Disk budget (``max_mb`` for the whole log directory): before each frame the
 oldest *other* sessions are removed until the frame fits; when the current
-session alone fills the budget, logging stops. Any write error (disk full, read-only,
-quota) stops logging with one warning; the daemon keeps flying.
+session alone fills the budget, logging stops. Free space (``min_free_mb``): a frame
+that would leave less than that free on the log's file system is not written and
+logging stops (other users of the disk count too, so the budget alone cannot
+promise it). Any write error (disk full, read-only, quota) stops logging with one
+warning; the daemon keeps flying. A log directory that cannot be created or written
+at start-up is a configuration error (:func:`ensure_log_dir`).
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import logging
 import os
 import queue
 import shutil
+import tempfile
 import threading
 import time
 from dataclasses import dataclass
@@ -27,6 +32,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from uav_depth.core.calibration import Calibration
+from uav_depth.core.errors import ConfigError
 from uav_depth.daemon.config import LoggingConfig
 from uav_depth.core.session import Session, SessionWriter
 from uav_depth.daemon.ranging import Estimate
@@ -57,12 +63,31 @@ def frame_meta(frame: Frame, est: Estimate, t0: float, source_kind: str,
     return meta
 
 
+def ensure_log_dir(path: Path) -> Path:
+    """Create ``path`` if needed and prove this user can write in it; ConfigError (one line) if not."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".uav-depth-write-test.", dir=path)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise ConfigError("logging.dir", f"must be a directory this user (uid {os.getuid()}) can create and "
+                          f"write ({exc.strerror or exc}); set logging.dir: null to fly without logging",
+                          str(path)) from exc
+    return path
+
+
+def free_mb(path: Path) -> float:
+    """Free space for this user on the file system holding ``path``, MB."""
+    return shutil.disk_usage(path).free / (1024 * 1024)
+
+
 def tree_size(path: Path) -> int:
     """Bytes in the files under ``path`` (0 when it does not exist)."""
     total = 0
     try:
         entries = list(os.scandir(path))
-    except (FileNotFoundError, NotADirectoryError):
+    except OSError:   # missing, not a directory, unreadable: nothing of ours to count
         return 0
     for entry in entries:
         try:
@@ -70,7 +95,7 @@ def tree_size(path: Path) -> int:
                 total += tree_size(Path(entry.path))
             else:
                 total += entry.stat(follow_symlinks=False).st_size
-        except FileNotFoundError:
+        except OSError:
             continue
     return total
 
@@ -217,6 +242,11 @@ class FrameLogger:
                 if not self._make_room(guess):
                     self._stop(f"disk budget of {self.config.max_mb:g} MB for {self.root} is used up by the "
                                "current session")
+                    continue
+                left_mb = free_mb(self.root) - guess / (1024 * 1024)
+                if left_mb < self.config.min_free_mb:
+                    self._stop(f"free space on {self.root}'s file system would fall to {max(left_mb, 0):.0f} MB, "
+                               f"below logging.min_free_mb {self.config.min_free_mb:g} MB")
                     continue
                 frame = self._writer.write(item.index, item.left, item.right, reference=item.reference,
                                            meta=dict(item.meta), reference_source=item.reference_source)

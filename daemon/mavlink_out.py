@@ -67,7 +67,13 @@ def load_signing_key(path: Path) -> bytes:
     if st.st_mode & (stat.S_IRWXG | stat.S_IRWXO):
         raise ConfigError(key, "must not be accessible by group or others (chmod 600)",
                           f"{path} with mode {stat.S_IMODE(st.st_mode):04o}")
-    raw = path.read_bytes()
+    if stat.S_ISDIR(st.st_mode):
+        raise ConfigError(key, "must name a file, not a directory", str(path))
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:   # the service user cannot read it (root-owned 0600): one line, exit 78
+        raise ConfigError(key, f"must be readable by this user (uid {os.getuid()}): {exc.strerror}",
+                          str(path)) from exc
     text = raw.strip()
     try:
         if len(text) == 64:
@@ -188,8 +194,9 @@ def distance_report(estimate: Estimate | None, limits: RangeLimits, now: float, 
 Callback = Callable[[Any], None]
 #: Longest wait between two connection attempts: the peer's return is noticed within it.
 RECONNECT_MAX_S = 0.25
-#: A TCP peer that has answered TIMESYNC once and leaves a request unanswered this long is not
-#: reading: measurements are held back (they would wait in its receive buffer and arrive old).
+#: A TCP peer that has answered TIMESYNC once gets each measurement only after answering a request
+#: sent just before it; a request unanswered this long means the peer is not reading: measurements are
+#: held back (they would wait in its receive buffer and arrive old).
 PROBE_TIMEOUT_S = 0.1
 #: A udpin peer silent this long may be replaced by the next autopilot that sends a HEARTBEAT.
 PEER_SILENT_S = 3.0
@@ -207,6 +214,7 @@ class _Out:
     kind: str | None
     build: Callable[[Any], Any]
     deadline: float | None
+    probe: int | None = None      # TCP: the TIMESYNC request (ts1) this measurement waits to see answered
 
 
 class _Capture:
@@ -250,6 +258,7 @@ class MavlinkLink:
         self._rx_tokens, self._rx_t = float(READ_BURST), clock()
         self._probe: tuple[int, float] | None = None      # (ts1, sent at) of the unanswered TIMESYNC request
         self._peer_answers = False                        # the stream peer has answered a TIMESYNC request
+        self._answered = 0                                # ts1 of the newest answered request
         self.autopilot: tuple[int, int] | None = None
         self.sent = 0
         self.dropped = 0          # queued but not written: no connection or peer, queue full, replaced
@@ -417,7 +426,7 @@ class MavlinkLink:
 
     def _new_connection(self) -> None:
         self._rx = self._mavlink()
-        self._probe, self._peer_answers = None, False
+        self._probe, self._peer_answers, self._answered = None, False, 0
         for msg_id, hz in list(self._intervals.items()):
             self._send_interval(msg_id, hz)
 
@@ -476,7 +485,7 @@ class MavlinkLink:
         if t.dead:
             raise ConnectionError("connection reset")
         with self._qlock:
-            pending = bool(self._queue)
+            pending = any(o.probe is None for o in self._queue)   # waiting for an answer: the socket wakes us
         self._rx_tokens = min(float(READ_BURST), self._rx_tokens + (now - self._rx_t) * READ_RATE)
         self._rx_t = now
         reading = self._rx_tokens > 0              # over the inbound budget: the kernel holds (or drops) it
@@ -490,10 +499,14 @@ class MavlinkLink:
         if reading and t.fileno() in ready:
             self._rx_tokens -= self._read(t)
 
-    def _peer_reading(self, now: float) -> bool:
-        if not self._peer_answers or self._probe is None:
-            return True        # a peer that never answered TIMESYNC is not gated (docs/wire.md)
-        return now - self._probe[1] < PROBE_TIMEOUT_S
+    def _ask(self, t: Transport, now: float) -> int | None:
+        """Send a TIMESYNC request (tc1 0); ArduPilot and PX4 answer it on the same link."""
+        ts1 = time.monotonic_ns()
+        if not t.write(self._tx.timesync_encode(0, ts1).pack(self._tx)):
+            return None
+        self._tx.seq = (self._tx.seq + 1) % 256
+        self._probe = (ts1, now)
+        return ts1
 
     def _write_queue(self, now: float) -> None:
         t = self._t
@@ -503,6 +516,7 @@ class MavlinkLink:
             items = list(self._queue)
             self._queue.clear()
         probe = isinstance(t, (TcpClient, TcpServer))
+        waiting: list[_Out] = []
         for o in items:
             if o.deadline is not None and now > o.deadline:
                 self.expired += 1
@@ -510,9 +524,26 @@ class MavlinkLink:
             if not t.can_send:
                 self.dropped += 1
                 continue
-            if o.deadline is not None and probe and not self._peer_reading(now):
-                self.held += 1
-                continue
+            if o.deadline is not None and probe and self._peer_answers:
+                # Ask first, write after the answer: a peer answers only while its application reads, so
+                # what follows an answer is read at once, and a peer that stopped reading is written nothing
+                # that would wait in its receive buffer and arrive old.
+                if o.probe is None:
+                    if self._probe is not None and now - self._probe[1] >= PROBE_TIMEOUT_S:
+                        self.held += 1                        # not reading: held back, not queued
+                        if now - self._probe[1] > 1.0:
+                            self._ask(t, now)                 # ask again now and then
+                        continue
+                    o.probe = self._probe[0] if self._probe is not None else self._ask(t, now)
+                    if o.probe is None:
+                        self.dropped += 1
+                        continue
+                if self._answered < o.probe:
+                    if self._probe is None or self._probe[0] != o.probe or now - self._probe[1] >= PROBE_TIMEOUT_S:
+                        self.held += 1
+                    else:
+                        waiting.append(o)
+                    continue
             msg = o.build(self._tx)
             buf = msg.pack(self._tx)
             self._tx.seq = (self._tx.seq + 1) % 256
@@ -521,12 +552,13 @@ class MavlinkLink:
             else:
                 self.dropped += 1
                 continue
-            if o.deadline is not None and probe and (self._probe is None or now - self._probe[1] > 1.0):
-                ts1 = time.monotonic_ns()
-                req = self._tx.timesync_encode(0, ts1)
-                if t.write(req.pack(self._tx)):
-                    self._tx.seq = (self._tx.seq + 1) % 256
-                    self._probe = (ts1, now)
+            if o.deadline is not None and probe and not self._peer_answers and (
+                    self._probe is None or now - self._probe[1] > 1.0):
+                self._ask(t, now)                             # does this peer answer? then it is gated
+        if waiting:
+            with self._qlock:
+                kinds = {o.kind for o in self._queue}
+                self._queue.extendleft(o for o in reversed(waiting) if o.kind not in kinds)
 
     def _read(self, t: Transport) -> int:
         """Parse what is there (bounded by the transport's read budget); the number of bytes read."""
@@ -564,7 +596,7 @@ class MavlinkLink:
         mtype = msg.get_type()
         if mtype == "TIMESYNC" and msg.tc1 != 0:
             if self._probe is not None and msg.ts1 == self._probe[0]:
-                self._probe, self._peer_answers = None, True
+                self._answered, self._probe, self._peer_answers = msg.ts1, None, True
         elif self._is_our_autopilot(msg):
             ap = (msg.get_srcSystem(), msg.get_srcComponent())
             if ap != self.autopilot:

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import errno
+import fcntl
 import logging
 import os
 import select
@@ -30,6 +32,9 @@ _EVENT = struct.Struct("iIII")   # wd, mask, cookie, len
 #: Quiet time after an event before the file is read: editors write in several steps.
 SETTLE_S = 0.05
 _SLICE_S = 0.25
+#: A changed file is read only once it has kept the same (inode, size, mtime) for this long
+#: and no process holds it open for writing (see :func:`wait_until_complete`).
+STABLE_S = 0.3
 
 
 def file_signature(path: Path) -> tuple[int, int, int] | None:
@@ -39,6 +44,55 @@ def file_signature(path: Path) -> tuple[int, int, int] | None:
     except OSError:
         return None
     return (st.st_ino, st.st_size, st.st_mtime_ns)
+
+
+def open_for_writing(path: Path) -> bool | None:
+    """True when some process holds ``path`` open for writing, False when none does, None when unknown.
+
+    Linux refuses a read lease (F_SETLEASE F_RDLCK) on a file that is open for
+    writing anywhere: taking one and dropping it at once is a cheap probe. Only the
+    file's owner (or CAP_LEASE) may take a lease; otherwise the answer is None.
+    """
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        fcntl.fcntl(fd, fcntl.F_SETLEASE, fcntl.F_RDLCK)
+        fcntl.fcntl(fd, fcntl.F_SETLEASE, fcntl.F_UNLCK)
+        return False
+    except OSError as exc:
+        return True if exc.errno in (errno.EAGAIN, errno.EBUSY) else None
+    finally:
+        os.close(fd)
+
+
+def wait_until_complete(path: Path, stop: threading.Event, stable_s: float = STABLE_S,
+                        timeout_s: float | None = None) -> bool:
+    """Wait until ``path`` is complete: unchanged for ``stable_s`` and open for writing nowhere.
+
+    A writer that keeps the file open (``>`` redirection, an editor writing in
+    parts) is waited for, however slow; a writer that closes a half file and
+    reopens it later cannot be told from a finished one (write atomically:
+    temp file + rename, as ``uav-depth tune`` does). Returns False when ``stop``
+    is set or ``timeout_s`` passes first; True also when the file is gone.
+    """
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    told = False
+    while True:
+        before = file_signature(path)
+        if stop.wait(stable_s):
+            return False
+        now = file_signature(path)
+        if now is None:
+            return True
+        if now == before and open_for_writing(path) is not True:
+            return True
+        if not told:
+            log.info("%s is being written; waiting until it is complete", path)
+            told = True
+        if deadline is not None and time.monotonic() > deadline:
+            return False
 
 
 class _Inotify:
@@ -97,7 +151,12 @@ class FileWatcher:
         self._thread: threading.Thread | None = None
         self._stop: threading.Event | None = None
         self._watching = threading.Event()
+        self._poked = threading.Event()
         self._since = since
+
+    def poke(self) -> None:
+        """Handle the file now, changed or not (SIGHUP): on the watcher's thread, within a slice."""
+        self._poked.set()
 
     def run(self, stop: threading.Event) -> None:
         """Watch until ``stop`` is set (blocking; :meth:`start` runs it on a thread)."""
@@ -120,11 +179,13 @@ class FileWatcher:
                     break
                 if hit and stop.wait(SETTLE_S):
                     break
-                if not hit and time.monotonic() < next_poll:
+                poked = self._poked.is_set()
+                if not hit and not poked and time.monotonic() < next_poll:
                     continue
+                self._poked.clear()
                 next_poll = time.monotonic() + self.poll_s
                 now = file_signature(self.path)
-                if now != seen:
+                if now != seen or poked:
                     seen = now
                     try:
                         self.on_change(self.path)

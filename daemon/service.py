@@ -36,11 +36,11 @@ from pathlib import Path
 from typing import Any, Callable
 
 from uav_depth.core.calibration import Calibration
-from uav_depth.core.errors import CalibrationError, ConfigError, FrameError, SourceError, UavDepthError
+from uav_depth.core.errors import ConfigError, FrameError, SourceError, UavDepthError
 from uav_depth.core.rectify import Rectifier
 from uav_depth.daemon.capture import Capture, Mailbox
 from uav_depth.daemon.config import RunConfig
-from uav_depth.daemon.framelog import FrameLogger, frame_meta
+from uav_depth.daemon.framelog import FrameLogger, ensure_log_dir, frame_meta
 from uav_depth.daemon.health import Health, Stats, status_line
 from uav_depth.daemon.liveview import LiveView
 from uav_depth.daemon.obstacles import Field, ObstacleSender, encoder, limits_cm
@@ -50,9 +50,12 @@ from uav_depth.daemon.notify import Notifier
 from uav_depth.daemon.ranging import Estimate, OutlierGate, RangeLimits, resolve_roi
 from uav_depth.daemon.reload import FileWatcher
 from uav_depth.daemon.sources import Frame, FrameSource, create_source
-from uav_depth.daemon.stage import Stage, StageHolder
+from uav_depth.daemon.stage import Stage, StageHolder, resolve_calibration
 
 log = logging.getLogger("uav_depth.service")
+
+#: The values of :attr:`Service.condition`.
+CONDITIONS = ("starting", "measuring", "camera_lost", "params_unusable", "shutting_down")
 
 
 @dataclass(frozen=True)
@@ -92,7 +95,7 @@ class Service:
                                                               svc.reconnect_max_s)
         self.notifier = notifier if notifier is not None else Notifier()
         self.health = Health(svc, self.notifier, self.status_line)
-        self.stages = StageHolder(config.params_file, config.ranging, self.link.statustext)
+        self.stages = StageHolder(config.params_file, config.ranging, self.link.statustext, self._stopping)
         self.estimate: Estimate | None = None       # what the send clock reads; replaced by one assignment
         self.last_estimate: Estimate | None = None   # newest frame's result, accepted or not
         self.calibration: Calibration | None = None
@@ -140,6 +143,29 @@ class Service:
     def stats(self) -> Stats:
         return self.health.stats
 
+    @property
+    def condition(self) -> str:
+        """What the service can say about the distance now, for the link (one of :data:`CONDITIONS`).
+
+        ``starting``: no frame processed yet; ``camera_lost``: the source stopped
+        delivering (reconnecting); ``params_unusable``: the configured parameter file
+        is missing, so the built-in manual defaults run (a refused *new* file keeps the
+        last good parameters and is not this: see ``stages.rejected``);
+        ``shutting_down``: shutdown began; ``measuring``: frames flow through a stage
+        built from the configured parameters (each estimate still says whether it
+        measured, and how old it is).
+        """
+        if self._stopping.is_set():
+            return "shutting_down"
+        if not self._first_frame.is_set():
+            return "starting"
+        if not self.camera_ok:
+            return "camera_lost"
+        stage = self.stage
+        if self.config.params_file is not None and (stage is None or stage.origin != str(self.config.params_file)):
+            return "params_unusable"
+        return "measuring"
+
     def reload_params(self, path: Path | None = None) -> bool:
         """Re-read the parameter file (see :meth:`StageHolder.reload`). Never raises."""
         return self.stages.reload(path)
@@ -181,14 +207,7 @@ class Service:
         self.source.open()      # SourceError when the camera is missing: fails fast, says what
         self.camera_ok = True
         log.info("source: %s", self.source.describe())
-        calib = cfg.calibration or self.source.calibration
-        if calib is None:
-            raise CalibrationError(f"source {cfg.source_kind} carries no calibration: set calibration: FILE "
-                                   "(focal_px, baseline_m, width, height; K, D, R, T for raw frames)")
-        if cfg.calibration is not None and self.source.calibration is not None \
-                and cfg.calibration != self.source.calibration:
-            log.warning("the config's calibration overrides the one the %s source carries", cfg.source_kind)
-        self.rectifier = Rectifier(calib)
+        self.rectifier = Rectifier(resolve_calibration(cfg.calibration, self.source.calibration, cfg.source_kind))
         self.calibration = self.rectifier.calibration
         self.roi = resolve_roi(cfg.ranging.roi, self.calibration.width, self.calibration.height)
         if hasattr(self.source, "truth_roi"):
@@ -201,6 +220,7 @@ class Service:
                  lim.min_distance_m, lim.max_distance_m)
         log.info("parameters: %s, hash %s", stage.origin, stage.hash)
         if cfg.logging.dir is not None:
+            ensure_log_dir(cfg.logging.dir)     # ConfigError: exit 78 before anything flies
             self.framelog = FrameLogger(cfg.logging, self.calibration, cfg.source_kind,
                                         on_stop=lambda why: self.link.statustext("uav-depth: logging stopped",
                                                                                  "warning")).start()
@@ -356,7 +376,10 @@ class Service:
                     break
                 if self._reload_now.is_set():
                     self._reload_now.clear()
-                    self.reload_params()
+                    if self._watcher is not None:
+                        self._watcher.poke()     # read on the watcher's thread: the loop never waits
+                    else:
+                        self.reload_params()
                 self.health.tick(self.healthy)
         finally:
             report = self.shutdown()

@@ -11,20 +11,27 @@ from __future__ import annotations
 
 import functools
 import logging
+import math
 import threading
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+import cv2
+import numpy as np
+
 from uav_depth.core.calibration import Calibration
 from uav_depth.core.disparity import DisparityPipeline, flight_pipeline
-from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError
-from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, load_params
+from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError, ParameterWarning
+from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, check_image_size, load_params
 from uav_depth.daemon.ranging import Ranger, RangingConfig
-from uav_depth.daemon.reload import file_signature
+from uav_depth.daemon.reload import file_signature, wait_until_complete
 
 log = logging.getLogger("uav_depth.service")
 
+#: At start-up, how long a parameter file still being written is waited for before it is read anyway.
+STARTUP_WAIT_S = 10.0
 #: ``statustext(text, severity)``: how the stage tells the autopilot about a reload.
 StatusText = Callable[[str, str], object]
 
@@ -64,14 +71,74 @@ def check_roi_against_compute(roi: tuple[int, int, int, int], params: StereoPara
             f"(= {list(c)} px at {width}x{height}); disparity there is NaN, so ranging sees only the overlap")
 
 
+def test_render(stage: Stage, width: int, height: int, seed: int = 0) -> tuple[str | None, float]:
+    """Measure a test render: a fronto-parallel random texture filling the view at a distance the
+    stage should read. Returns (why it measured nothing, or None; the distance rendered, m).
+
+    This is the first-use check of a parameter set: the easiest scene SGBM can be
+    given (every pixel textured, one integer disparity inside the search range and
+    the ranging limits). Parameters that measure nothing here measure nothing in
+    flight (penalties out of range, a search range the ROI cannot use, a
+    uniqueness or speckle setting that removes every match), so they are refused.
+    """
+    ranger, sg = stage.ranger, stage.params.sgbm
+    d_max = (sg.min_disparity + sg.num_disparities - 1) * ranger.px
+    d = int(round(min(max(0.4 * d_max, 2.0 * ranger.d_floor), 0.9 * d_max)))
+    d = max(d, int(math.ceil(ranger.d_floor)) + 1)
+    z = ranger.fb / d
+    x0, y0, x1, y1 = ranger.roi
+    if stage.params.compute.whole_frame:
+        # Whole-frame matching: render only the ROI plus what SGBM needs around it (the search
+        # range to the left, a block all round), which is all that reaches the ROI's pixels.
+        pad = int(math.ceil((sg.block_size + 8) * ranger.px))
+        cx0 = max(0, x0 - int(math.ceil((sg.min_disparity + sg.num_disparities) * ranger.px)) - pad)
+        need = int(math.ceil((sg.min_disparity + sg.num_disparities + sg.block_size // 2 + 2) * ranger.px))
+        cy0, cx1, cy1 = max(0, y0 - pad), min(width, max(x1 + pad, cx0 + need)), min(height, y1 + pad)
+        ranger = Ranger(ranger.config, ranger.calibration, (x0 - cx0, y0 - cy0, x1 - cx0, y1 - cy0), stage.params)
+        width, height = cx1 - cx0, cy1 - cy0
+    rng = np.random.default_rng(seed)
+    base = cv2.GaussianBlur(rng.integers(0, 256, (height, width + d), dtype=np.uint8), (0, 0), 0.7)
+    left, right = np.ascontiguousarray(base[:, :width]), np.ascontiguousarray(base[:, d:d + width])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ParameterWarning)
+        try:
+            m = ranger.measure(stage.pipeline.run(left, right))
+        except cv2.error as exc:   # OpenCV's own refusal, as one line
+            return f"OpenCV refused: {' '.join(str(exc).split())[:200]}", z
+    return (None if m.valid else m.reason or "no measurement"), z
+
+
 def build_stage(params: StereoParams, origin: str, ranging: RangingConfig, calibration: Calibration,
                 roi: tuple[int, int, int, int]) -> Stage:
-    """Build the stage for ``params`` (warns when the ranging ROI leaves the matching region)."""
+    """Build the stage for ``params`` and check that it can measure; ConfigError when it cannot.
+
+    Refused: parameters that cannot match anything at this image size
+    (:func:`~uav_depth.core.params.check_image_size`) and parameters that measure
+    nothing on :func:`test_render`. Warns when the ranging ROI leaves the matching region.
+    """
+    w, h = calibration.width, calibration.height
+    check_image_size(params, w, h, origin)
     ranger = Ranger(ranging, calibration, roi, params)
-    warning = check_roi_against_compute(roi, params, calibration.width, calibration.height)
+    warning = check_roi_against_compute(roi, params, w, h)
     if warning:
         log.warning("%s", warning)
-    return Stage(params, flight_pipeline(params), ranger, origin)
+    stage = Stage(params, flight_pipeline(params), ranger, origin)
+    why, z = test_render(stage, w, h)
+    if why is not None:
+        raise ConfigError("(parameters)", f"must measure a test render (random texture filling the view at "
+                          f"{z:.2f} m, {w}x{h}, ranging ROI {list(roi)}); they measured nothing", why, origin)
+    return stage
+
+
+def resolve_calibration(configured: Calibration | None, carried: Calibration | None, kind: str) -> Calibration:
+    """The calibration the daemon uses: the config's, else the one the source carries; CalibrationError if none."""
+    calib = configured or carried
+    if calib is None:
+        raise CalibrationError(f"source {kind} carries no calibration: set calibration: FILE "
+                               "(focal_px, baseline_m, width, height; K, D, R, T for raw frames)")
+    if configured is not None and carried is not None and configured != carried:
+        log.warning("the config's calibration overrides the one the %s source carries", kind)
+    return calib
 
 
 class StageHolder:
@@ -81,10 +148,13 @@ class StageHolder:
     reload is reported to the autopilot.
     """
 
-    def __init__(self, params_file: str | None, ranging: RangingConfig, statustext: StatusText):
+    def __init__(self, params_file: str | None, ranging: RangingConfig, statustext: StatusText,
+                 stop: threading.Event | None = None):
         self.params_file = Path(params_file) if params_file is not None else None
         self.ranging = ranging
         self.statustext = statustext
+        self.stop = stop or threading.Event()
+        self.rejected: str | None = None   # why the newest file was refused (None: it is what flies)
         self.stage: Stage | None = None
         self.signature: tuple[int, int, int] | None = None   # the file as last read (for the watcher)
         self._calibration: Calibration | None = None
@@ -100,6 +170,8 @@ class StageHolder:
             log.warning("parameter file %s does not exist: using the built-in manual defaults until it appears",
                         path)
             return DEFAULT_PARAMS, "built-in manual defaults"
+        wait_until_complete(path, self.stop, timeout_s=STARTUP_WAIT_S)
+        self.signature = file_signature(path)
         return load_params(path), str(path)
 
     def open(self, calibration: Calibration, roi: tuple[int, int, int, int]) -> Stage:
@@ -116,14 +188,19 @@ class StageHolder:
     def reload(self, path: Path | None = None) -> bool:
         """Re-read the parameter file; swap the stage if it is valid and new. Never raises.
 
-        Invalid file: the last good parameters stay, one log line names the problem,
-        a STATUSTEXT says so. Returns True when a new stage was swapped in.
+        The file is read once it is complete (:func:`~uav_depth.daemon.reload.wait_until_complete`).
+        Invalid file (unreadable, not UTF-8, not YAML, a key twice, a rule broken, or
+        parameters that measure nothing on the test render): the last good parameters
+        stay, one log line names the problem, a STATUSTEXT says so and :attr:`rejected`
+        holds the reason. Returns True when a new stage was swapped in.
         """
         path = Path(path) if path is not None else self.params_file
         if path is None or self.stage is None:
             return False
         with self._lock:
             current = self.stage
+            if not wait_until_complete(path, self.stop):
+                return False
             if not path.exists():
                 log.warning("parameter file %s removed; keeping parameters %s", path, current.hash)
                 return False
@@ -134,10 +211,17 @@ class StageHolder:
                     return False
                 stage = self.build(params, str(path))
             except (ConfigError, FileFormatError, CalibrationError) as exc:
-                log.error("parameters rejected, keeping %s: %s", current.hash, exc)
-                self.statustext(f"uav-depth: params rejected, kept {current.hash[:8]}", "warning")
-                return False
+                return self._reject(current, str(exc))
+            except Exception as exc:   # never let a new file end the daemon: the last good stage flies on
+                return self._reject(current, f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}")
+            self.rejected = None
             self.stage = stage      # the swap: the stereo thread picks it up at its next frame
             log.info("parameters reloaded from %s: hash %s (was %s)", path, stage.hash, current.hash)
             self.statustext(f"uav-depth: params {stage.hash[:8]} loaded", "info")
             return True
+
+    def _reject(self, current: Stage, why: str) -> bool:
+        self.rejected = why
+        log.error("parameters rejected, keeping %s: %s", current.hash, why)
+        self.statustext(f"uav-depth: params rejected, kept {current.hash[:8]}", "warning")
+        return False

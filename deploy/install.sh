@@ -155,8 +155,19 @@ fi
 act install -d -m 0750 "$root/var/lib/uav-depth" "$root/var/lib/uav-depth/logs"
 own uav-depth uav-depth "$root/var/lib/uav-depth" "$root/var/lib/uav-depth/logs"
 params="$root/var/lib/uav-depth/params.yaml"
-if [ -e "$params" ]; then
-    say "keeping existing $params"
+params_bad=0
+if [ -e "$params" ] && [ $dry -eq 1 ]; then
+    say "keeping existing $params (after uav-depth params check)"
+elif [ -e "$params" ]; then
+    # An operator's (or the tuner's) file is never replaced, but an invalid one is not kept silently:
+    # the daemon would refuse it at start (exit 78) and fly nothing.
+    if why=$("$root$venv/bin/python" -m uav_depth.cli.main params check "$params" 2>&1); then
+        say "keeping existing $params (${why##*$'\n'})"
+    else
+        params_bad=1
+        say "existing $params is INVALID and was kept as it is: ${why##*$'\n'}"
+        say "the daemon refuses it at start (exit 78); fix it, or remove it and run install.sh again for the flight file"
+    fi
 elif [ $dry -eq 1 ]; then
     say "+ install -m 0640 $here/params-flight.yaml $params (after uav-depth params check)"
 elif why=$("$root$venv/bin/python" -m uav_depth.cli.main params check "$here/params-flight.yaml" 2>&1); then
@@ -201,4 +212,8 @@ else
     say "config check failed, the service will not start until this is fixed: ${out##*$'\n'}"
 fi
 
+if [ $params_bad -eq 1 ]; then
+    echo "$prog: installed, but the kept parameter file $params is invalid (see above)" >&2
+    exit 1
+fi
 say "done. Edit ${root}/etc/uav-depth/config.yaml, then: systemctl start uav-depth; journalctl -u uav-depth -f"

@@ -362,12 +362,13 @@ def time_render(config: SceneConfig, repeats: int = 3) -> float:
 
 
 def write_session(outdir, frames: int, seed: int, base: SceneConfig | None = None, vary_scenes: bool = True,
-                  fixed_distance: float | None = None):
+                  fixed_distance: float | None = None, progress=None):
     """Write a synthetic session in the log layout: pairs, exact reference disparity,
     calibration, and per-frame truth (nearest branch distance in the centre ROI).
 
     Frame ``i`` uses a scene drawn from ``numpy.random.default_rng([seed, i])``, so
-    a frame does not depend on how many frames are written.
+    a frame does not depend on how many frames are written. ``progress(done, total)``
+    is called after each frame when given.
     """
     from uav_depth.core.session import SessionWriter
 
@@ -386,4 +387,6 @@ def write_session(outdir, frames: int, seed: int, base: SceneConfig | None = Non
                                        "note": "ray-cast ground truth from uav_depth.sim.scene"})
         # The branch mask helps branch-aware fitness later.
         np.save(writer.session.frames_dir / f"{i:06d}_branch.npy", frame.branch_mask)
+        if progress is not None:
+            progress(i + 1, frames)
     return writer.session

@@ -1,9 +1,11 @@
 """uav-depth run --config FILE: the on-board daemon (stereo -> branch distance -> MAVLink DISTANCE_SENSOR).
 
 Exit codes: 0 after a clean stop (SIGTERM, SIGINT, a replay that ended); 78
-(EX_CONFIG) when the config, calibration or parameter file is invalid, so systemd
-does not restart-loop on a typo; 69 (EX_UNAVAILABLE) when the camera is missing at
-start-up, so systemd may retry until it appears; 1 for other errors.
+(EX_CONFIG) when the config, calibration, parameter file, signing key or log
+directory is unusable, so systemd does not restart-loop on a typo; 69
+(EX_UNAVAILABLE) when the camera (or the replay's files) is missing at start-up,
+so systemd may retry until it appears; 1 for other errors. ``--check`` exits with
+the code ``run`` would.
 """
 
 from __future__ import annotations
@@ -19,7 +21,10 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--params-file", metavar="FILE", help="same as --set params_file=FILE")
     p.add_argument("--mavlink-url", metavar="URL", help="same as --set mavlink.url=URL")
     p.add_argument("--log-dir", metavar="DIR", help="same as --set logging.dir=DIR")
-    p.add_argument("--check", action="store_true", help="validate the config, print a summary and exit")
+    p.add_argument("--check", action="store_true",
+                   help="load everything run would (config, signing key, log directory, calibration, parameter "
+                        "file with every rule, replay files; camera presence as a warning), print what was "
+                        "checked and exit with run's exit code")
     p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
 
 
@@ -56,15 +61,15 @@ def error_line(command: str):
     return lambda exc: print(f"uav-depth {command}: error: {exc}", file=sys.stderr, flush=True)
 
 
-def serve(service, stop, command: str, cleanup=None) -> int:
-    """Run ``service`` until ``stop`` is set (SIGTERM, SIGINT); SIGUSR1 logs a frame, SIGHUP reloads.
+def serve(service, signals, command: str, cleanup=None) -> int:
+    """Run ``service`` until ``signals.stop`` is set (SIGTERM, SIGINT); SIGUSR1 logs a frame, SIGHUP reloads.
 
-    Maps what stops it to the exit codes above; ``cleanup`` runs whatever happens.
-    The handlers only set events; the service's threads and main loop do the work.
+    ``signals``: the process's :class:`~uav_depth.cli.signals.Signals`, installed at
+    exec. Maps what stops it to the exit codes above; ``cleanup`` runs whatever
+    happens. The handlers only set events; the service's threads and main loop do the work.
     """
     import logging
     import os
-    import signal
     import sys
 
     from uav_depth.cli.main import EXIT_CONFIG, EXIT_ERROR, EXIT_UNAVAILABLE
@@ -72,10 +77,14 @@ def serve(service, stop, command: str, cleanup=None) -> int:
                                          SourceError, UavDepthError)
 
     err = error_line(command)
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGUSR1, lambda *_: service.request_log_frame())
-    signal.signal(signal.SIGHUP, lambda *_: service.request_reload())
+    stop = signals.stop
+    if signals.reload.is_set():
+        logging.getLogger("uav_depth.service").info("SIGHUP before start-up: nothing to reload yet (the parameter "
+                                                     "file is read now)")
+    signals.attach(service.request_reload, service.request_log_frame)
+    if stop.is_set():
+        return stopped_before_start(signals, command, cleanup)
+    log_signals_installed(signals)
     try:
         report = service.run(stop)
     except (ConfigError, CalibrationError, FileFormatError, DependencyError) as exc:
@@ -103,8 +112,55 @@ def serve(service, stop, command: str, cleanup=None) -> int:
     return 0
 
 
+def stopped_before_start(signals, command: str, cleanup=None) -> int:
+    """A SIGTERM/SIGINT arrived during start-up: nothing ran yet, exit 0 with one line."""
+    import logging
+
+    if cleanup is not None:
+        cleanup()
+    log_signals_installed(signals)
+    logging.getLogger("uav_depth.service").info("%s: stopped before start-up finished (%s)", command,
+                                                 ", ".join(signals.received) or "stop requested")
+    return 0
+
+
+def log_signals_installed(signals) -> None:
+    import logging
+
+    ms = signals.installed_after_ms
+    logging.getLogger("uav_depth.service").info(
+        "signal handlers installed %s after exec", f"{ms:.0f} ms" if ms is not None else "(time unknown)")
+
+
+def check(config) -> int:
+    """``run --check``: everything run would load (see uav_depth.daemon.preflight); run's exit codes."""
+    from uav_depth.cli.main import EXIT_CONFIG, EXIT_UNAVAILABLE
+    from uav_depth.core.errors import (CalibrationError, ConfigError, DependencyError, FileFormatError,
+                                         SourceError)
+    from uav_depth.daemon.preflight import preflight
+    from uav_depth.daemon.sources import create_source
+
+    err = error_line("run --check")
+    try:
+        report = preflight(config, create_source(config.source))
+    except (ConfigError, CalibrationError, FileFormatError, DependencyError) as exc:
+        err(exc)
+        return EXIT_CONFIG
+    except SourceError as exc:
+        err(exc)
+        return EXIT_UNAVAILABLE
+    for line in report.checked:
+        print(f"checked: {line}")
+    for line in report.warnings:
+        print(f"warning: {line}")
+    print(f"config valid: {config.summary()}")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
-    import threading
+    from uav_depth.cli.signals import install_once
+
+    signals = install_once()
 
     from uav_depth.cli.main import EXIT_CONFIG
     from uav_depth.cli.sources import SOURCES
@@ -112,15 +168,17 @@ def run(args: argparse.Namespace) -> int:
     from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError
 
     setup_logging(args.log_level)
-    err = error_line("run")
+    err = error_line("run --check" if args.check else "run")
     try:
         config = load_run_config(args.config, overrides_from_args(args), sources=SOURCES)
     except (ConfigError, CalibrationError, FileFormatError) as exc:
         err(exc)
         return EXIT_CONFIG
     if args.check:
-        print(f"config valid: {config.summary()}")
-        return 0
+        return check(config)
+
+    if signals.stop.is_set():
+        return stopped_before_start(signals, "run")
 
     from uav_depth.daemon.service import Service
 
@@ -129,4 +187,4 @@ def run(args: argparse.Namespace) -> int:
     except (ConfigError, CalibrationError, FileFormatError) as exc:
         err(exc)
         return EXIT_CONFIG
-    return serve(service, threading.Event(), "run")
+    return serve(service, signals, "run")

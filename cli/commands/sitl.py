@@ -60,9 +60,11 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from uav_depth.cli.signals import install_once
+
+    signals = install_once()
+
     import logging
-    import signal
-    import threading
     import time
     from pathlib import Path
 
@@ -101,11 +103,15 @@ def run(args: argparse.Namespace) -> int:
               + ("; scripted approach" if args.scripted else ""))
         return 0
 
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    stop = signals.stop
+    if stop.is_set():
+        return run_command.stopped_before_start(signals, "sitl")
     svc = config.service
-    link = MavlinkLink(config.mavlink, svc.reconnect_min_s, svc.reconnect_max_s)
+    try:
+        link = MavlinkLink(config.mavlink, svc.reconnect_min_s, svc.reconnect_max_s)   # reads the signing key
+    except ConfigError as exc:
+        err(exc)
+        return EXIT_CONFIG
     tracker = PoseTracker(sitl, config.source.scene.branch_distance_m)
     recorder = None
     refused: list[str] = []
@@ -179,7 +185,7 @@ def run(args: argparse.Namespace) -> int:
         truth.close()
         log.info("truth log %s: %s", path, truth.summary())
 
-    code = run_command.serve(service, stop, "sitl", cleanup=close_truth)
+    code = run_command.serve(service, signals, "sitl", cleanup=close_truth)
     if refused:
         err(scripted_refusal(refused[0]))
         return EXIT_CONFIG

@@ -23,6 +23,22 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--color", action="store_true", help="write BGR colour frames instead of grey")
 
 
+def progress_line(what: str, every_s: float = 2.0):
+    """A ``progress(done, total)`` that prints ``  WHAT done/total`` to a terminal's stderr at most every
+    ``every_s`` (no line when stderr is not a terminal: logs and pipes stay clean)."""
+    import sys
+
+    last = [time.monotonic()]
+
+    def progress(done: int, total: int) -> None:
+        now = time.monotonic()
+        if sys.stderr.isatty() and (now - last[0] >= every_s or done == total):
+            print(f"  {what} {done}/{total}", file=sys.stderr, flush=True)
+            last[0] = now
+
+    return progress
+
+
 def run(args: argparse.Namespace) -> int:
     from uav_depth.core.errors import ConfigError
     from uav_depth.core.session import prepare_output
@@ -38,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     prepare_output(args.outdir, args.overwrite)
     t0 = time.perf_counter()
     write_session(args.outdir, args.frames, args.seed, base, vary_scenes=not args.fixed_conditions,
-                  fixed_distance=args.distance_m)
+                  fixed_distance=args.distance_m, progress=progress_line("rendered"))
     dt = time.perf_counter() - t0
     print(f"wrote {args.frames} frames to {args.outdir} ({dt / args.frames * 1000:.0f} ms per pair incl. PNG)")
     return 0

@@ -55,6 +55,14 @@ class Config:
         return cls(**values)
 
 
+def _recorded_time(record: FrameRecord) -> Any:
+    """The frame's logged ``time_s``; None when its meta.json is unreadable (read() skips that frame)."""
+    try:
+        return record.load_meta().get("time_s")
+    except FileFormatError:
+        return None
+
+
 class ReplaySource:
     kind = "replay"
 
@@ -69,7 +77,7 @@ class ReplaySource:
         self._times: list[float] = []
         self._i = 0
         self._lap = 0
-        self._t0 = 0.0
+        self._t0: float | None = None
 
     def describe(self) -> str:
         rate = f"{self.config.rate_hz:g} fps" if self.config.rate_hz else "recorded timing"
@@ -94,11 +102,12 @@ class ReplaySource:
         self._times = self._timing(frames)
         self._i = 0
         self._lap = 0
-        self._t0 = self.clock()
+        self._t0 = None       # pacing starts at the first read: start-up work after open() (the
+                              # parameters' test render) must not make the first frames late
 
     def _timing(self, frames: list[FrameRecord]) -> list[float]:
         if self.config.rate_hz is None:
-            stamps = [f.load_meta().get("time_s") for f in frames]
+            stamps = [_recorded_time(f) for f in frames]
             if all(isinstance(t, (int, float)) for t in stamps) and list(stamps) == sorted(stamps):
                 return [float(t) - float(stamps[0]) for t in stamps]
         rate = self.config.rate_hz or DEFAULT_RATE_HZ
@@ -116,6 +125,8 @@ class ReplaySource:
             self._i = 0
             self._lap += 1
         lap_s = self._times[-1] + (self._times[1] - self._times[0] if len(self._times) > 1 else 0.1)
+        if self._t0 is None:
+            self._t0 = self.clock()
         due = self._t0 + self._lap * lap_s + self._times[self._i]
         wait = due - self.clock()
         if wait > timeout_s:

@@ -168,14 +168,14 @@ class UvcSource:
     def open(self) -> None:
         c = self.config
         devices = [c.device] if c.right_device is None else [c.device, c.right_device]
+        if c.zed_calibration is not None:   # a config fault first (exit 78), not after waiting for the camera
+            self.calibration = read_zed_conf(c.zed_calibration, c.width, c.height)
         for dev in devices:
             path = device_path(dev)
             if not os.path.exists(path):
                 found = sorted(glob.glob("/dev/video*"))
                 raise SourceError(f"uvc: camera {path} not found (video devices present: "
                                   f"{', '.join(found) if found else 'none'}); is the camera plugged in?")
-        if c.zed_calibration is not None:
-            self.calibration = read_zed_conf(c.zed_calibration, c.width, c.height)
         import cv2
 
         sbs = c.right_device is None

@@ -51,6 +51,52 @@ def test_bad_params_file_is_one_line_and_config_exit(tmp_path):
     assert "sgbm.num_disparities must be a positive multiple of 16, but got 40" in proc.stderr
 
 
+@pytest.mark.parametrize("data,message", [
+    (b"", r"must set at least one section \(sgbm, wls, compute\); an empty file is not taken as the defaults"),
+    (b"sgbm:\n  p1: 600 # caf\xe9\n", r"parameter file is not UTF-8 text \(byte 0xe9"),
+    (b"sgbm:\n  p2: 2400\n  p2: 2500\n", r"sgbm\.p2 is given twice \(line 2 and line 3\)"),
+    (b"sgbm:\n  p1: 600\n  p2: 40000\n", r"sgbm\.p2 must be at most 32767"),
+    (b"\x00\x01", r"parameter file is a binary file"),
+], ids=["empty", "not-utf8", "duplicate-key", "p2-over-16-bit-costs", "binary"])
+def test_params_check_applies_the_daemons_rules(tmp_path, data, message):
+    import re
+
+    bad = tmp_path / "p.yaml"
+    bad.write_bytes(data)
+    proc = cli("params", "check", str(bad), check=False)
+    assert proc.returncode == EXIT_CONFIG, proc.stderr
+    assert proc.stderr.strip().count("\n") == 0 and "Traceback" not in proc.stderr
+    assert re.search(message, proc.stderr), proc.stderr
+
+
+def test_params_check_against_a_camera_runs_the_test_render(tmp_path):
+    calib = tmp_path / "calib.yaml"
+    calib.write_text("focal_px: 200.0\nbaseline_m: 0.063\nwidth: 320\nheight: 240\n")
+    good = tmp_path / "good.yaml"
+    good.write_text("sgbm:\n  num_disparities: 64\n")
+    assert "measures a test render at 320x240" in cli("params", "check", str(good), "--calibration",
+                                                      str(calib)).stdout
+    hides = tmp_path / "hides.yaml"         # the search range leaves the central ROI unmatched
+    hides.write_text("sgbm:\n  num_disparities: 224\n  block_size: 31\n")
+    assert cli("params", "check", str(hides)).returncode == 0        # the schema alone cannot tell
+    proc = cli("params", "check", str(hides), "--calibration", str(calib), check=False)
+    assert proc.returncode == EXIT_CONFIG
+    assert "(parameters) must measure a test render" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_set_of_an_unknown_key_blames_the_command_line(tmp_path):
+    cfg = tmp_path / "run.yaml"
+    cfg.write_text("source: {kind: synthetic}\n")
+    proc = cli("run", "--config", str(cfg), "--set", "nosuch.key=1", "--check", check=False)
+    assert proc.returncode == EXIT_CONFIG
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(
+        "uav-depth run --check: error: command line: nosuch is not a known section (known: source, calibration, ")
+    assert lines[0].endswith("), but got {'key': 1}") and str(cfg) not in lines[0]
+    proc = cli("run", "--config", str(cfg), "--set", "mavlink.nosuch=1", "--check", check=False)
+    assert proc.returncode == EXIT_CONFIG and "error: command line: mavlink.nosuch is not a known key" in proc.stderr
+
+
 def test_missing_logdir_is_clear(tmp_path):
     proc = cli("evaluate", str(tmp_path / "nowhere"), check=False)
     assert proc.returncode == 1 and "log directory not found" in proc.stderr and "Traceback" not in proc.stderr

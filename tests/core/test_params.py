@@ -2,7 +2,8 @@ import pytest
 import yaml
 
 from uav_depth.core.errors import ConfigError, FileFormatError
-from uav_depth.core.params import (DEFAULT_PARAMS, SPECS, dump_params, load_params, params_from_dict,
+from uav_depth.core.params import (DEFAULT_PARAMS, OPENCV_COST_MAX, SPECS, check_image_size, dump_params,
+                                     load_params, params_from_dict,
                                      read_provenance, save_params)
 
 
@@ -46,6 +47,10 @@ BAD = [
     ("sigma-zero", {"wls": {"sigma_color": 0}}, "wls.sigma_color must be greater than 0, but got 0.0"),
     ("nan", {"wls": {"lambda": float("nan")}}, "wls.lambda must be a finite number"),
     ("section-not-map", {"sgbm": 5}, "sgbm must be a mapping, but got 5"),
+    ("p2-over-16-bit", {"sgbm": {"p2": 32768}}, "sgbm.p2 must be at most 32767 (OpenCV's SGBM keeps costs in 16-bit"),
+    ("p1-over-16-bit", {"sgbm": {"p1": 40000, "p2": 50000}}, "sgbm.p1 must be at most 32767"),
+    ("empty-mapping", {}, "(file) must set at least one section (sgbm, wls, compute); an empty file is not taken"),
+    ("only-provenance", {"provenance": {"by": "hand"}}, "must set at least one section"),
 ]
 
 
@@ -68,6 +73,39 @@ def test_bad_files(tmp_path, text, message):
     path.write_text(text)
     with pytest.raises((ConfigError, FileFormatError), match=message):
         load_params(path)
+
+
+@pytest.mark.parametrize("text", ["", "\n", "# tuned later\n", "---\n"], ids=["empty", "newline", "comment", "document-marker"])
+def test_an_empty_file_is_an_error_not_the_defaults(tmp_path, text):
+    path = tmp_path / "params.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=r"must set at least one section .* not taken as the defaults"):
+        load_params(path)
+
+
+def test_the_largest_penalties_opencv_can_hold_load(tmp_path):
+    path = save_params(DEFAULT_PARAMS.replace(**{"sgbm.p1": OPENCV_COST_MAX - 1, "sgbm.p2": OPENCV_COST_MAX}),
+                       tmp_path / "p.yaml")
+    assert load_params(path).sgbm.p2 == OPENCV_COST_MAX
+
+
+@pytest.mark.parametrize("changes,width,height,message", [
+    ({"sgbm.num_disparities": 640}, 640, 360, r"sgbm\.num_disparities must leave columns to match: .* below the "
+                                               r"matched image width 640 px"),
+    ({"sgbm.num_disparities": 320, "compute.scale": 0.5}, 640, 360, r"matched image width 320 px \(640 px x "
+                                                                   r"compute.scale 0.5\)"),
+    ({"sgbm.num_disparities": 304, "sgbm.min_disparity": 1, "sgbm.block_size": 31}, 320, 240, r"sgbm\.num_disparities must leave columns"),
+    ({"sgbm.block_size": 31, "sgbm.num_disparities": 16}, 40, 24, r"sgbm\.block_size must fit the matched image "
+                                                                   r"\(40x24 px\)"),
+], ids=["search-as-wide-as-image", "search-wider-than-scaled-image", "search-plus-half-block", "block-taller"])
+def test_parameters_that_cannot_match_at_an_image_size_are_refused(changes, width, height, message):
+    with pytest.raises(ConfigError, match=message):
+        check_image_size(DEFAULT_PARAMS.replace(**changes), width, height, "p.yaml")
+
+
+def test_a_search_range_that_fits_passes_the_image_size_check():
+    check_image_size(DEFAULT_PARAMS, 1280, 720)
+    check_image_size(DEFAULT_PARAMS.replace(**{"sgbm.num_disparities": 288}), 320, 240)   # 320 - 288 > 5 // 2
 
 
 def test_missing_file(tmp_path):

@@ -7,7 +7,7 @@ import pytest
 
 from uav_depth.daemon.config import (MavlinkConfig, RangingConfig, env_keys, load_run_config, reference_markdown,
                                      run_config_from_dict, SECTION_CLASSES)
-from uav_depth.core.errors import ConfigError
+from uav_depth.core.errors import ConfigError, FileFormatError
 from uav_depth.cli.sources import SOURCES
 from uav_depth.daemon.sources import source_keys
 
@@ -118,7 +118,7 @@ def test_errors_say_where_the_value_came_from(tmp_path):
 
 
 def test_invalid_yaml_and_missing_file(tmp_path):
-    with pytest.raises(ConfigError, match="must be valid YAML at line 3"):
+    with pytest.raises(FileFormatError, match="config is not valid YAML at line 3"):
         load_run_config(write(tmp_path, "source:\n  kind: [synthetic\n"), environ={}, sources=SOURCES)
     with pytest.raises(ConfigError, match="--config must name an existing file"):
         load_run_config(tmp_path / "nope.yaml", environ={}, sources=SOURCES)

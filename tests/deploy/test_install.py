@@ -240,6 +240,25 @@ def test_second_install_keeps_the_config_and_changes_nothing_else(installed, whe
     assert cfg.read_text().endswith("# edited by the operator\n")
 
 
+@pytest.mark.parametrize("text,message", [
+    ("", "must set at least one section"),
+    ("sgbm:\n  p1: 600\n  p2: 40000\n", "sgbm.p2 must be at most 32767"),
+    ("sgbm:\n  p1: 600\n  p1: 900\n", "sgbm.p1 is given twice"),
+], ids=["empty", "p2-over-16-bit-costs", "duplicate-key"])
+def test_an_invalid_existing_params_file_is_kept_but_not_silently(installed, wheel, tmp_path, text, message):
+    root, _ = installed
+    work = clone(root, tmp_path)
+    params = work / "var/lib/uav-depth/params.yaml"
+    params.write_text(text)
+    cmd = ["bash", str(DEPLOY / "install.sh"), "--root", str(work), "--from", str(wheel), "--no-deps",
+           "--python", sys.executable, "--camera", "sitl"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert proc.returncode != 0, proc.stdout
+    assert f"existing {params} is INVALID and was kept as it is" in proc.stdout and message in proc.stdout
+    assert "the kept parameter file" in proc.stderr
+    assert params.read_text() == text          # the operator's file is never replaced
+
+
 def test_dry_run_changes_nothing(installed, tmp_path):
     empty = tmp_path / "empty"
     empty.mkdir()
