@@ -65,17 +65,18 @@ def hover(sitl, truth: Path, distance_m: float, hold_s: float = 12.0) -> dict:
 
 
 def session(arducopter: str, sensor: str, modes, speeds, hovers, avoid: dict, work: Path,
-            instance: int = 0) -> tuple[list, list]:
+            instance: int = 0, sets=()) -> tuple[list, list]:
     port = h.free_udp_port()
     sitl = h.Sitl(arducopter, work / f"sitl-{sensor}", port, log=lambda s: None, instance=instance).start()
     daemon = None
     flights, hovered = [], []
     try:
         h.prepare(sitl, sensor, avoid)
-        daemon = h.start_daemon(port, work / f"truth-{sensor}.csv", work / f"daemon-{sensor}.log")
+        daemon = h.start_daemon(port, work / f"truth-{sensor}.csv", work / f"daemon-{sensor}.log", sets=sets)
         assert sitl.wait(lambda: sitl.rec.north, 120), "no pose from SITL"
         sitl.set_mode(h.GUIDED)
-        sitl.arm()
+        sitl.arm(force=True)       # the branch is out of view on the ground: the daemon is blind there
+        time.sleep(2.0)
         sitl.takeoff(h.ALT_M)
         for mode in modes:
             for v in speeds:
@@ -109,6 +110,8 @@ def main(argv=None) -> int:
     ap.add_argument("--hover", nargs="*", type=float, default=[3.0, 4.0, 5.0])
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="an avoidance parameter")
     ap.add_argument("--keep", metavar="DIR", help="keep SITL, daemon and truth logs here")
+    ap.add_argument("--daemon-set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a run-config override for the daemon (uav-depth sitl --set)")
     ap.add_argument("--instance", type=int, default=0, help="SITL -I (TCP 5760 + 10 I), to run beside another")
     args = ap.parse_args(argv)
     arducopter = h.binary()
@@ -123,7 +126,7 @@ def main(argv=None) -> int:
     print(f"avoidance: {avoid}; logs in {work}")
     flights, hovered = [], []
     for sensor in args.sensors:
-        f, hv = session(arducopter, sensor, args.modes, args.speeds, args.hover, avoid, work, args.instance)
+        f, hv = session(arducopter, sensor, args.modes, args.speeds, args.hover, avoid, work, args.instance, args.daemon_set)
         flights += f
         hovered += hv
     print("\nsensor mode    speed  closest approach  stopped  reading lag  capture->autopilot (median)")
