@@ -8,7 +8,7 @@ the centre third of the image:
 
 - reference: on the ground-truth disparity (measured = ground truth, no confidence),
   with the manual baseline's parameters;
-- measured: on ``DisparityPipeline(params).run(left, right)``.
+- measured: on ``flight_pipeline(params).run(left, right)`` (what the daemon flies).
 
 Calibration: focal x baseline is scaled per scene so that the nearest object (the
 99th percentile of the ground-truth disparity in the centre third) is 1.5 m away;
@@ -44,7 +44,7 @@ from scenebench import ROOT, fmt_pct, param_sets
 
 from uav_depth.cli.benchmark import machine_line
 from uav_depth.core.calibration import Calibration
-from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.core.disparity import flight_pipeline
 from uav_depth.core.disparity.result import DisparityResult
 from uav_depth.core.params import DEFAULT_PARAMS
 from uav_depth.daemon.ranging import Ranger, RangingConfig, default_roi
@@ -89,7 +89,7 @@ def evaluate(data: Path, params_names=("baseline", "flight"), scenes=SCENES) -> 
         roi = default_roi(cal.width, cal.height)
         ref_m = Ranger(RangingConfig(), cal, roi, DEFAULT_PARAMS).measure(DisparityResult(gt, gt, None))
         for pname, params in sets.items():
-            m = Ranger(RangingConfig(), cal, roi, params).measure(DisparityPipeline(params).run(left, right))
+            m = Ranger(RangingConfig(), cal, roi, params).measure(flight_pipeline(params).run(left, right))
             ref = ref_m.distance_m
             err = None if (m.distance_m is None or ref is None) else (m.distance_m - ref) / ref
             rows.append({"scene": name, "split": "held-out" if name in HELD_OUT else "dev", "params": pname,

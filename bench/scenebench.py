@@ -1,7 +1,7 @@
 """Shared by the scene benchmarks (near_sweep, leafy_suite, real_ranging): parameter sets,
 cached synthetic frames, and one frame measured as the daemon does and put on the wire.
 
-A frame goes through the real ``DisparityPipeline``, the daemon's ``Ranger`` and
+A frame goes through the real ``flight_pipeline``, the daemon's ``Ranger`` and
 ``mavlink_out.distance_report``: the distance judged is what DISTANCE_SENSOR would carry
 when its condition is "measuring" (``current_distance`` in cm); "too close" is that
 report's condition (the wire's: a reading at or inside the minimum range, or an
@@ -21,8 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from uav_depth.core.disparity import DisparityPipeline
-from uav_depth.core.disparity.result import DisparityResult
+from uav_depth.core.disparity import DisparityResult, flight_pipeline
 from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, load_params, read_provenance
 from uav_depth.daemon.mavlink_out import TOO_CLOSE, distance_report
 from uav_depth.daemon.ranging import Estimate, Ranger, RangingConfig
@@ -86,7 +85,7 @@ class Measurer:
 
     def __init__(self, params: StereoParams, cfg: SceneConfig, ranging: RangingConfig | None = None):
         self.params = params
-        self.pipe = DisparityPipeline(params)
+        self.pipe = flight_pipeline(params)      # what the daemon flies: near check on, no WLS smoothing
         self.ranger = Ranger(ranging or RangingConfig(), cfg.calibration, cfg.center_roi, params)
 
     @property

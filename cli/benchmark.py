@@ -24,7 +24,7 @@ from typing import Any, Callable, Sequence
 import cv2
 import numpy as np
 
-from uav_depth.core.disparity import DisparityPipeline, DisparityResult
+from uav_depth.core.disparity import DisparityPipeline, DisparityResult, flight_pipeline
 from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, disparity_search_range
 from uav_depth.sim.scene import Scene, SceneConfig, background_period_px, vary
 
@@ -51,13 +51,18 @@ class BenchFrame:
 
 @dataclass(frozen=True)
 class Variant:
-    """A pipeline to time: its parameters, how many rounds, and OpenCV's thread count (None: leave it)."""
+    """A pipeline to time: its parameters, how many rounds, and OpenCV's thread count (None: leave it).
+
+    ``flies``: time it as the daemon flies it (:func:`flight_pipeline`: no WLS smoothing, near check
+    on), else as the tuner's faithful mode computes it (every stage, WLS included).
+    """
 
     name: str
     params: StereoParams
     rounds: int
     threads: int | None = None
     note: str = ""
+    flies: bool = False
 
 
 @dataclass
@@ -191,8 +196,11 @@ def lever_variants(flight: StereoParams, rounds: int, naive_rounds: int) -> list
         p = p.replace(**change)
         out.append(Variant(name, p, r, note=note))
     diff = [f"{k}={v}" for k, v in _flat(flight).items() if _flat(p)[k] != v]
-    out.append(Variant("flight", flight, rounds, note="the flight file" + (f" ({', '.join(diff)})" if diff else "")))
-    out.append(Variant("flight-1thread", flight, rounds, threads=1, note="cv2.setNumThreads(1)"))
+    out.append(Variant("flight+WLS", flight, rounds, note="the flight file with WLS smoothing, no near check "
+                       "(how it flew before)"))
+    out.append(Variant("flight", flight, rounds, flies=True,
+                       note="as it flies: no WLS smoothing, near check" + (f" ({', '.join(diff)})" if diff else "")))
+    out.append(Variant("flight-1thread", flight, rounds, threads=1, flies=True, note="cv2.setNumThreads(1)"))
     out.append(Variant("flight-noWLS", flight.replace(**{"wls.enabled": False}), rounds,
                        note="no right matcher/WLS: no confidence map"))
     return out
@@ -241,7 +249,7 @@ def run(frames: Sequence[BenchFrame], variants: Sequence[Variant],
         progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Time every variant on every frame, interleaved; return the summary (see :meth:`VariantResult.summary`)."""
     make_ranger = _ranger_factory()
-    pipes = {v.name: DisparityPipeline(v.params) for v in variants}
+    pipes = {v.name: flight_pipeline(v.params) if v.flies else DisparityPipeline(v.params) for v in variants}
     results = {v.name: VariantResult(v) for v in variants}
     default_threads = cv2.getNumThreads()
     n_rounds = max(v.rounds for v in variants)
@@ -292,7 +300,10 @@ def bench(flight: StereoParams, frames: int = 12, rounds: int = 20, naive_rounds
     else:
         variants = [Variant("naive", DEFAULT_PARAMS, naive_rounds,
                             note="OpenCV sample: full frame, colour, SGBM+right+WLS"),
-                    Variant("flight", flight, rounds, note="the flight parameter file")]
+                    Variant("flight+WLS", flight, rounds, note="the flight file with WLS smoothing, no near check "
+                            "(how it flew before)"),
+                    Variant("flight", flight, rounds, flies=True,
+                            note="the flight parameter file as it flies: no WLS smoothing, near check")]
     out = run(fr, variants, progress)
     out["machine"] = machine()
     out["frames"] = {"n": len(fr), "width": width, "height": height, "seed": seed, "colour": True,

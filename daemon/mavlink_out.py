@@ -618,7 +618,8 @@ class SendClock:
 
     ``estimate``: returns the newest published estimate (a plain attribute read,
     never a lock the stereo loop holds); :meth:`notify` wakes the clock when one is
-    published (without it, the clock looks every 10 ms). ``limits``: the current
+    published (until it is first called, the clock looks every 10 ms; then every 100 ms and on each
+    notify). ``limits``: the current
     range limits; ``state``: the HEARTBEAT system state (boot, standby, active,
     critical, poweroff), which also names a blind condition (:data:`STATE_BLIND`);
     ``blind``: returns a blind condition the service knows of, or None.

@@ -1,24 +1,25 @@
 """Branch ranging: from a disparity result to the distance of the nearest significant object in the ROI.
 
 Only pixels the matcher really measured are used (``DisparityResult.measured``,
-not WLS fill-in), and only where WLS's left-right confidence is at least
+not WLS fill-in), and only where the left-right confidence is at least
 ``min_confidence``. Among them, the nearest significant object is found in
-disparity:
+disparity (docs/ranging.md says why each rule and threshold is what it is):
 
-1. ``front``: the ``min_valid_px``-th largest disparity, so that fewer than
-   ``min_valid_px`` stray pixels nearer than the object cannot pull it forward;
+1. ``front``: the nearest disparity at which the pixels at least as near make at
+   least ``min_valid_px`` matched pixels and ``min_object_m2`` of visible area
+   (:mod:`uav_depth.core.significant`), so that stray near pixels cannot pull it
+   forward at any range or ``compute.scale``;
 2. the object: every pixel between ``front`` and the disparity of a surface
-   ``cluster_depth_m`` behind it, widened by ``cluster_margin_px`` for matching
-   noise;
+   ``cluster_depth_m`` behind it, widened by one matched pixel for matching noise;
 3. its disparity: the confidence-weighted quantile that leaves ``surface_quantile``
-   of the object nearer (0.5: the median depth; the default 0.2 reads the nearest
-   surface of a round branch to within 2% of its radius, where the median reads
-   13% of the radius behind it); its spread sigma_d: 1.4826 x the weighted median
-   absolute deviation, at least 0.29 px (SGBM's pixel locking).
+   of the object nearer; its spread sigma_d: 1.4826 x the weighted median absolute
+   deviation, at least 1/sqrt(12) matched px (SGBM's pixel locking).
 
-Z = f*B/d and sigma_Z = Z^2/(f*B) * sigma_d. A frame whose distance jumps by more
-than ``max_jump_rel`` from the last accepted one is held back until
-``confirm_frames`` consecutive frames agree (:class:`OutlierGate`).
+Z = f*B/d and sigma_Z = Z^2/(f*B) * sigma_d. A reading below ``min_quality`` is no
+measurement. An object nearer than the minimum range (the near check sees it
+beyond the search, or the object piles at the search's end) is *too close*: no
+distance, never a farther one. :class:`OutlierGate` lets a nearer reading through
+at once and holds a jump away until ``confirm_frames`` frames agree.
 """
 
 from __future__ import annotations
@@ -58,9 +59,9 @@ class RangingConfig:
     """The ``ranging:`` section: how the nearest object is found and when an estimate is too old."""
 
     roi: tuple[int, int, int, int] | None = None
-    min_valid_px: int = 100
+    min_valid_px: int = 25
     min_object_m2: float = SIGNIFICANT_AREA_M2
-    min_quality: int = 40
+    min_quality: int = 31
     min_confidence: float = 0.5
     max_age_ms: float = 300.0
     max_distance_m: float = 10.0
@@ -72,13 +73,13 @@ class RangingConfig:
     KEYS = (
         Key("roi", "roi", None, "region of interest in the rectified left image, px; null: the central third",
             optional=True),
-        Key("min_valid_px", "int", 100, "fewest matched pixels (at compute.scale) the nearest object needs to count; "
-            "SGBM's own speckle window is 100", 1, 10_000_000),
+        Key("min_valid_px", "int", 25, "fewest matched pixels (at compute.scale) the nearest object needs to count "
+            "(5 x 5; with min_object_m2, the area rule that dominates near the camera)", 1, 10_000_000),
         Key("min_object_m2", "float", SIGNIFICANT_AREA_M2,
             "smallest visible area, m^2 at its measured depth, that the nearest object needs to count "
             "(2 cm^2: a twig the saw or a propeller would hit)", 0.0, 1.0),
-        Key("min_quality", "int", 40, "readings of lower signal quality (2..100) are no measurement "
-            "(docs/ranging.md: correct readings score 60-75, wrong ones 2-30)", 0, 100),
+        Key("min_quality", "int", 31, "readings of lower signal quality (2..100) are no measurement "
+            "(docs/ranging.md: wrong readings scored 2-30, correct ones 39-85)", 0, 100),
         Key("min_confidence", "float", 0.5, "WLS confidence (0..1) a measured pixel needs to be used", 0.0, 1.0),
         Key("max_age_ms", "float", 300.0,
             "an estimate older than this (from frame capture) is never sent as valid; "

@@ -161,12 +161,15 @@ if [ -e "$params" ] && [ $dry -eq 1 ]; then
 elif [ -e "$params" ]; then
     # An operator's (or the tuner's) file is never replaced, but an invalid one is not kept silently:
     # the daemon would refuse it at start (exit 78) and fly nothing.
-    if why=$("$root$venv/bin/python" -m uav_depth.cli.main params check "$params" 2>&1); then
+    why=$("$root$venv/bin/python" -m uav_depth.cli.main params check "$params" 2>&1) && rc=0 || rc=$?
+    if [ $rc -eq 0 ]; then
         say "keeping existing $params (${why##*$'\n'})"
-    else
+    elif [ $rc -eq 78 ]; then
         params_bad=1
         say "existing $params is INVALID and was kept as it is: ${why##*$'\n'}"
         say "the daemon refuses it at start (exit 78); fix it, or remove it and run install.sh again for the flight file"
+    else
+        say "keeping existing $params; the installed package could not check it (${why##*$'\n'})"
     fi
 elif [ $dry -eq 1 ]; then
     say "+ install -m 0640 $here/params-flight.yaml $params (after uav-depth params check)"

@@ -64,13 +64,19 @@ def window(params: StereoParams, width: int, height: int) -> Window:
 
     A left pixel at x matches right pixels x - d for d in min_disparity ..
     min_disparity + num_disparities - 1 (matched pixels), so the crop reaches that
-    far left of the region (and right of it for a negative min_disparity).
+    far left of the region (and right of it for a negative min_disparity). With the
+    right matcher on (``wls.enabled``: the left-right check) the crop also reaches
+    min_disparity + num_disparities right of the region: the right matcher leaves
+    that many columns at the crop's right edge unanswered, and a left pixel whose
+    partner falls there is not left-right checked (:mod:`.confidence`); so every
+    pixel of the region is, unless the image itself ends.
     """
     sg, cp = params.sgbm, params.compute
     rx0, ry0, rx1, ry1 = cp.roi_pixels(width, height)
     context = max(CONTEXT_PX, sg.block_size // 2 + 1)
-    left = math.ceil((max(0, sg.min_disparity + sg.num_disparities) + context) / cp.scale)
-    right = math.ceil((max(0, -sg.min_disparity) + context) / cp.scale)
+    band = max(0, sg.min_disparity + sg.num_disparities)
+    left = math.ceil((band + context) / cp.scale)
+    right = math.ceil((max(0, -sg.min_disparity) + context + (band if params.wls.enabled else 0)) / cp.scale)
     vert = math.ceil(context / cp.scale)
     crop = (max(0, rx0 - left), max(0, ry0 - vert), min(width, rx1 + right), min(height, ry1 + vert))
     cw, ch = crop[2] - crop[0], crop[3] - crop[1]

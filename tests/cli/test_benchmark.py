@@ -71,13 +71,14 @@ def test_lever_ladder_adds_one_lever_at_a_time():
     flight = flight_params()
     ladder = lever_variants(flight, rounds=4, naive_rounds=1)
     names = [v.name for v in ladder]
-    assert names[:7] == ["naive", "+roi", "+grey", "+3way", "+scale", "+wls@matched", "flight"]
-    assert ladder[0].params == DEFAULT_PARAMS and ladder[6].params == flight
+    assert names[:8] == ["naive", "+roi", "+grey", "+3way", "+scale", "+wls@matched", "flight+WLS", "flight"]
+    assert ladder[0].params == DEFAULT_PARAMS and ladder[6].params == ladder[7].params == flight
+    assert not ladder[6].flies and ladder[7].flies      # as it flew before, and as it flies (no WLS smoothing)
     assert ladder[5].params.compute.wls_at == "matched" and ladder[4].params.compute.wls_at == "input"
     assert ladder[1].params.compute.roi == flight.compute.roi and ladder[1].params.compute.scale == 1.0
     assert ladder[3].params.sgbm.mode == "sgbm_3way" and not ladder[3].params.compute.scale < 1
     assert ladder[4].params.compute.scale == 0.5 and ladder[4].params.sgbm.num_disparities == 64
-    assert "num_disparities=80" in ladder[6].note
+    assert "num_disparities=80" in ladder[7].note
 
 
 def test_cli_bench_json_and_table(tmp_path):
@@ -86,7 +87,7 @@ def test_cli_bench_json_and_table(tmp_path):
     proc = subprocess.run([*args, "--json"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     doc = json.loads(proc.stdout)
-    assert [v["name"] for v in doc["variants"]] == ["naive", "flight"]
+    assert [v["name"] for v in doc["variants"]] == ["naive", "flight+WLS", "flight"]
     assert doc["machine"]["cores"] >= 1 and doc["machine"]["opencv"]
     assert "ranging_floor" in doc and doc["frames"]["n"] == 2
     table = format_report(doc)

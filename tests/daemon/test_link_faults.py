@@ -92,9 +92,10 @@ def test_blind_sends_nothing_and_every_reading_is_inside_min_max(tmp_path, peer)
     # DISTANCE_SENSOR at all while its HEARTBEAT and STATUSTEXT say why
     daemon = Daemon(tmp_path, f"udpout:127.0.0.1:{peer.port}", ranging={"max_age_ms": 1})
     try:
-        wait_for(lambda: "uav-depth: blind (stale)" in peer.texts(), 90, daemon, "the blind STATUSTEXT")
-        wait_for(lambda: len(peer.of("HEARTBEAT")) >= 3, 10, daemon, "3 heartbeats")
+        wait_for(lambda: "calibration:" in daemon.stderr(), 90, daemon, "start-up")
+        wait_for(lambda: len(peer.of("HEARTBEAT")) >= 4, 30, daemon, "4 heartbeats")
         assert peer.of("DISTANCE_SENSOR") == []
+        wait_for(lambda: "uav-depth: blind (stale)" in peer.texts(), 30, daemon, "the blind STATUSTEXT")
         assert any(b.system_status == 5 for b in peer.of("HEARTBEAT"))     # CRITICAL while stale
     finally:
         daemon.close()
@@ -159,11 +160,12 @@ def test_the_autopilot_coming_back_on_tcp_is_reconnected_within_a_second(tmp_pat
     try:
         wait_for(lambda: len(peer.of("DISTANCE_SENSOR")) >= 5, 90, daemon, "5 readings")
         peer.close()
-        time.sleep(3.0)                                 # long enough for a doubling back-off to grow
+        time.sleep(8.0)                                 # long enough for a doubling back-off to grow
         peer = Receiver(f"tcpin:127.0.0.1:{port}", autopilot=True)
         t_back = time.monotonic()
-        wait_for(lambda: peer.of("DISTANCE_SENSOR"), 10, daemon, "readings after the peer's return")
-        assert peer.timed("DISTANCE_SENSOR")[0][0] - t_back < 2.0
+        wait_for(lambda: peer.of("DISTANCE_SENSOR"), 20, daemon, "readings after the peer's return")
+        took = peer.timed("DISTANCE_SENSOR")[0][0] - t_back
+        assert took < 1.5, f"{took:.2f} s"            # goal 1 s; slack for a loaded machine's next frame
     finally:
         daemon.close()
         peer.close()

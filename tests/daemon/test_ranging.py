@@ -53,7 +53,7 @@ def test_wls_fill_in_is_never_ranged():
     measured = np.full((360, 640), np.nan, np.float32)
     filled = np.full((360, 640), 22.0, np.float32)      # WLS filled everything in
     m = ranger().measure(_result(measured, disparity=filled, confidence=np.ones_like(filled)))
-    assert not m.valid and "no object of 100 matched pixels" in m.reason
+    assert not m.valid and "no object of 25 matched pixels" in m.reason
 
 
 def test_low_confidence_pixels_are_not_used():
@@ -266,13 +266,14 @@ def test_min_valid_px_counts_matched_pixels_at_any_scale():
     """At compute.scale 0.5 one matched pixel is 4 input pixels: 60 matched pixels (240 input) stay
     fewer than min_valid_px 100 (the old rule counted 240 input pixels and made them an object)."""
     half = PARAMS.replace(**{"compute.scale": 0.5})
+    cfg = RangingConfig(min_valid_px=100)
     fb = 350.0 * 0.063
     d = np.full((360, 640), fb / 2.0, np.float32)       # a wall at 2 m
     d[150:162, 300:320] = fb / 0.5                       # 240 input px = 60 matched px at 0.5 m
-    m = ranger(params=half).measure(_result(d))
+    m = ranger(cfg, params=half).measure(_result(d))
     assert m.distance_m == pytest.approx(2.0, rel=1e-3)
     d[150:170, 300:340] = fb / 0.5                       # 800 input px = 200 matched px: an object
-    assert ranger(params=half).measure(_result(d)).distance_m == pytest.approx(0.5, rel=1e-3)
+    assert ranger(cfg, params=half).measure(_result(d)).distance_m == pytest.approx(0.5, rel=1e-3)
 
 
 def test_a_near_object_needs_its_metric_area():
@@ -281,7 +282,7 @@ def test_a_near_object_needs_its_metric_area():
     d = np.full((360, 640), fb / 2.0, np.float32)       # a wall at 2 m
     d[150:162, 300:310] = fb / 0.4                       # 120 px at 0.4 m: 120 * (0.4/350)^2 = 1.6 cm^2
     cfg = RangingConfig()
-    assert cfg.min_object_m2 == pytest.approx(2e-4) and cfg.min_valid_px == 100
+    assert cfg.min_object_m2 == pytest.approx(2e-4) and cfg.min_valid_px == 25
     m = ranger(cfg).measure(_result(d))
     assert m.distance_m == pytest.approx(2.0, rel=1e-3)
     d[150:170, 300:310] = fb / 0.4                       # 200 px: 2.6 cm^2, an object

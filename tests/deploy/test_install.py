@@ -16,6 +16,7 @@ import shutil
 import stat
 import subprocess
 import sys
+import sysconfig
 from pathlib import Path
 
 import pytest
@@ -250,6 +251,10 @@ def test_an_invalid_existing_params_file_is_kept_but_not_silently(installed, whe
     work = clone(root, tmp_path)
     params = work / "var/lib/uav-depth/params.yaml"
     params.write_text(text)
+    # Installed with --no-deps: give the installed venv this interpreter's dependencies, so that its
+    # own `uav-depth params check` runs (on a drone pip installs them).
+    site = next((work / VENV.lstrip("/") / "lib").glob("python3*/site-packages"))
+    (site / "_test_deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
     cmd = ["bash", str(DEPLOY / "install.sh"), "--root", str(work), "--from", str(wheel), "--no-deps",
            "--python", sys.executable, "--camera", "sitl"]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
