@@ -15,6 +15,7 @@ import numpy as np
 
 from uav_depth.core.calibration import Calibration
 from uav_depth.core.errors import ConfigError
+from uav_depth.core.roi import center_roi
 from uav_depth.sim.texture import BG_REPEAT_TILES, TEX_M
 
 
@@ -97,8 +98,9 @@ class SceneConfig:
 
     @property
     def center_roi(self) -> tuple[int, int, int, int]:
-        """Default region of interest (x0, y0, x1, y1): the central third of the image."""
-        return (self.width // 3, self.height // 3, 2 * self.width // 3, 2 * self.height // 3)
+        """Default region of interest (x0, y0, x1, y1): the central third of the image, as the daemon's
+        (:func:`uav_depth.core.roi.center_roi`, one definition)."""
+        return center_roi(self.width, self.height)
 
     @classmethod
     def leafy(cls, seed: int = 0, **overrides: Any) -> "SceneConfig":

@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-SIGNIFICANT_WIDTH_M = 0.003
-SIGNIFICANT_AREA_M2 = 2e-4
+# One definition, shared with the daemon's ranging (ranging.min_object_m2 defaults to the area).
+from uav_depth.core.significant import SIGNIFICANT_AREA_M2, SIGNIFICANT_WIDTH_M
 
 
 @dataclass(frozen=True)

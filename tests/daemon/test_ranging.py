@@ -298,3 +298,13 @@ def test_readings_below_the_quality_floor_are_no_measurement():
     assert not m.valid and m.quality == 25 and "below min_quality 40" in m.reason
     m = ranger(RangingConfig(min_quality=20)).measure(_result(d))
     assert m.valid and m.quality == 25
+
+
+def test_one_definition_of_the_default_roi_and_of_a_significant_object():
+    from uav_depth.core.roi import center_roi
+    from uav_depth.core.significant import SIGNIFICANT_AREA_M2
+    from uav_depth.sim import truth
+
+    for w, h in ((640, 360), (1280, 720), (1001, 503)):
+        assert default_roi(w, h) == center_roi(w, h) == SceneConfig(width=w, height=h).center_roi
+    assert RangingConfig().min_object_m2 == SIGNIFICANT_AREA_M2 == truth.SIGNIFICANT_AREA_M2
