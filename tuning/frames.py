@@ -194,5 +194,11 @@ def load_split(logdir: str | os.PathLike[str], holdout: str | None, needs: Itera
     held = FrameSet("holdout", tuple(load_frame(r) for r in held_r)).filter(needs)
     if not len(train):
         what = " and ".join(needs) or "frames"
-        raise FileFormatError(f"{logdir}: no training frame with {what} (after --holdout)")
+        hint = ""
+        if "reference" in needs:
+            hint = ("; give the frames a reference disparity (uav-depth reference import LOGDIR --from DIR, or "
+                    "uav-depth reference onnx), or tune without one: --metric selfsup")
+        elif "branch" in needs:
+            hint = "; the branch metric needs each frame's branch_distance_m (synthetic sessions carry it)"
+        raise FileFormatError(f"{logdir}: no training frame with {what} (after --holdout){hint}")
     return train, held
