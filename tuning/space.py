@@ -14,6 +14,8 @@ schema keys included).
   schema key, with a scale that suits the key (log for penalties and lambda),
   bounds inside what OpenCV can compute, and the rules of the schema (odd,
   multiple of 16, p2 > p1) declared so every decoded candidate is valid.
+
+Longer than 400 lines because the paper's 29-gene encoding and the schema-derived space share their bounds and constraints in one place.
 """
 
 from __future__ import annotations

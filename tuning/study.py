@@ -10,6 +10,8 @@ Identical candidates are evaluated once: each is keyed by a hash of its
 parameters, the frames' digest, the fitness and :data:`EVAL_VERSION`; elites and
 re-proposed parameter sets are answered from that cache (memory, then the run
 store), which is also how ``--resume`` replays a killed run to the very same end.
+
+Longer than 400 lines because the study's loop, its held-out choice and its resume are one orchestration over the store.
 """
 
 from __future__ import annotations
