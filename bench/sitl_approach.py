@@ -22,8 +22,8 @@ from pathlib import Path
 import yaml
 
 REPO = Path(__file__).resolve().parents[1]
-# The vehicle of tests/daemon/test_sitl_loop.py: one definition of the test autopilot.
-_spec = importlib.util.spec_from_file_location("sitl_loop", REPO / "tests/daemon/test_sitl_loop.py")
+# The vehicle of tests/cli/test_sitl_loop.py: one definition of the test autopilot.
+_spec = importlib.util.spec_from_file_location("sitl_loop", REPO / "tests/cli/test_sitl_loop.py")
 loop = importlib.util.module_from_spec(_spec)
 sys.modules["sitl_loop"] = loop      # dataclasses look their module up there
 _spec.loader.exec_module(loop)

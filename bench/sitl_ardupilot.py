@@ -64,26 +64,33 @@ def hover(sitl, truth: Path, distance_m: float, hold_s: float = 12.0) -> dict:
             if any(r["latency_ms"] for r in rows) else None}
 
 
-def session(arducopter: str, sensor: str, modes, speeds, hovers, avoid: dict, work: Path) -> tuple[list, list]:
+def session(arducopter: str, sensor: str, modes, speeds, hovers, avoid: dict, work: Path,
+            instance: int = 0, sets=()) -> tuple[list, list]:
     port = h.free_udp_port()
-    sitl = h.Sitl(arducopter, work / f"sitl-{sensor}", port, log=lambda s: None).start()
+    sitl = h.Sitl(arducopter, work / f"sitl-{sensor}", port, log=lambda s: None, instance=instance).start()
     daemon = None
     flights, hovered = [], []
     try:
         h.prepare(sitl, sensor, avoid)
-        daemon = h.start_daemon(port, work / f"truth-{sensor}.csv", work / f"daemon-{sensor}.log")
+        daemon = h.start_daemon(port, work / f"truth-{sensor}.csv", work / f"daemon-{sensor}.log", sets=sets)
         assert sitl.wait(lambda: sitl.rec.north, 120), "no pose from SITL"
         sitl.set_mode(h.GUIDED)
-        sitl.arm()
+        sitl.arm(force=True)       # the branch is out of view on the ground: the daemon is blind there
+        time.sleep(2.0)
         sitl.takeoff(h.ALT_M)
         for mode in modes:
             for v in speeds:
                 r = h.approach(sitl, mode, v)
+                lat = h.capture_to_autopilot_ms(work / f"truth-{sensor}.csv", sitl.rec.forwarded, r.t0, r.t1)
+                r.latency_ms = statistics.median(lat) if lat else None
+                r.latency_n = len(lat)
                 flights.append((sensor, r))
                 print(f"{sensor:4s} {mode:7s} {v:4.1f} m/s  closest {r.closest_m:+.2f} m  "
                       f"{'stopped' if r.stopped else 'moving '}  lag "
                       f"{'-' if r.reading_lag_m is None else f'{r.reading_lag_m:+.2f} m'}  "
-                      f"({r.readings} autopilot readings)", flush=True)
+                      f"({r.readings} autopilot readings); capture->autopilot "
+                      f"{'-' if r.latency_ms is None else f'{r.latency_ms:.0f} ms'} (median of {r.latency_n})",
+                      flush=True)
         for d in hovers:
             res = hover(sitl, work / f"truth-{sensor}.csv", d)
             hovered.append((sensor, res))
@@ -103,6 +110,9 @@ def main(argv=None) -> int:
     ap.add_argument("--hover", nargs="*", type=float, default=[3.0, 4.0, 5.0])
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="an avoidance parameter")
     ap.add_argument("--keep", metavar="DIR", help="keep SITL, daemon and truth logs here")
+    ap.add_argument("--daemon-set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a run-config override for the daemon (uav-depth sitl --set)")
+    ap.add_argument("--instance", type=int, default=0, help="SITL -I (TCP 5760 + 10 I), to run beside another")
     args = ap.parse_args(argv)
     arducopter = h.binary()
     if arducopter is None:
@@ -116,14 +126,15 @@ def main(argv=None) -> int:
     print(f"avoidance: {avoid}; logs in {work}")
     flights, hovered = [], []
     for sensor in args.sensors:
-        f, hv = session(arducopter, sensor, args.modes, args.speeds, args.hover, avoid, work)
+        f, hv = session(arducopter, sensor, args.modes, args.speeds, args.hover, avoid, work, args.instance, args.daemon_set)
         flights += f
         hovered += hv
-    print("\nsensor mode    speed  closest approach to the branch surface  stopped  reading lag")
+    print("\nsensor mode    speed  closest approach  stopped  reading lag  capture->autopilot (median)")
     for sensor, r in flights:
         lag = "-" if r.reading_lag_m is None else f"{r.reading_lag_m:+.2f} m"
-        print(f"{sensor:6s} {r.mode:7s} {r.speed:4.1f}   {r.closest_m:+.2f} m{'' if r.closest_m >= 0.3 else ' (< 0.3)':9s}"
-              f"                   {'yes' if r.stopped else 'no ':3s}      {lag}")
+        lat = "-" if r.latency_ms is None else f"{r.latency_ms:.0f} ms"
+        print(f"{sensor:6s} {r.mode:7s} {r.speed:4.1f}   {r.closest_m:+.2f} m{'' if r.closest_m >= 0.3 else ' (<0.3)':7s}"
+              f"    {'yes' if r.stopped else 'no ':3s}      {lag:8s}     {lat}")
     print("\nsensor hover  frames measured  median error       median sigma  |err|<=2 sigma  latency (capture->estimate)")
     for sensor, x in hovered:
         if x["err_m"] is None:

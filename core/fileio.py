@@ -9,12 +9,42 @@ from pathlib import Path
 from uav_depth.core.errors import FileFormatError
 
 
+def _umask() -> int:
+    """The process umask, read without setting it (os.umask would change it for every thread a moment)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except OSError:
+        pass
+    return 0o022
+
+
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
-    """Replace ``path`` with ``text`` atomically (same-directory temp, fsync, rename)."""
+    """Replace ``path`` with ``text`` atomically (same-directory temp, fsync, rename).
+
+    An existing file keeps its owner, group and mode (a ``sudo`` run must not leave the
+    daemon's parameter file as root's 0600, which the service could no longer read); where
+    the writer may not give the file back to its owner, the owner becomes the writer but the
+    mode is still kept. A new file gets 0666 minus the umask, as ``open()`` would give it.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        old = os.stat(path)
+    except FileNotFoundError:
+        old = None
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        if old is None:
+            os.fchmod(fd, 0o666 & ~_umask())
+        else:
+            try:
+                os.fchown(fd, old.st_uid, old.st_gid)
+            except PermissionError:
+                pass
+            os.fchmod(fd, old.st_mode & 0o7777)
         with os.fdopen(fd, "w") as fh:
             fh.write(text)
             fh.flush()

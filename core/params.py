@@ -8,6 +8,8 @@ The defaults are the *manual configuration* baseline: OpenCV's own sample values
 (``samples/python/stereo_match.py``: P1 = 8*3*block_size**2, P2 = 32*3*block_size**2,
 disp12MaxDiff 1, uniquenessRatio 10, speckle 100/32; ``disparity_filtering.cpp``:
 lambda 8000, sigma 1.5). The tuner reports its gains against them.
+
+Longer than 400 lines because it is the one parameter schema (every key, bound and rule) with its loader and writer.
 """
 
 from __future__ import annotations

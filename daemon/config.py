@@ -11,6 +11,8 @@ Settings resolve, first wins: an explicit argument (``--set mavlink.url=...``), 
 ``UAV_DEPTH_<SECTION>_<KEY>`` environment variable (``UAV_DEPTH_MAVLINK_RATE_HZ=25``,
 ``UAV_DEPTH_PARAMS_FILE=...``), the config file, the default. Errors name the key
 path, the rule and the value, and where the value came from.
+
+Longer than 400 lines because it holds the key table of every section of the run config, which the loader, the environment overrides and the docs read as one.
 """
 
 from __future__ import annotations

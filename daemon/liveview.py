@@ -87,14 +87,21 @@ class Offer:
 
 
 def wire_fields(report: Any) -> dict[str, Any]:
-    """The last DISTANCE_SENSOR sent, as the page shows it (None: nothing sent yet)."""
+    """The last DISTANCE_SENSOR decision of the send clock, as the page shows it.
+
+    ``sent``: a message went out (False in every blind condition, and before the first);
+    ``condition``: the clock's name for the case (measuring, too close, stale, ...);
+    ``valid``: a measured distance.
+    """
     if report is None:
-        return {"sent": False}
-    out: dict[str, Any] = {"sent": True}
-    for name in ("current_distance", "min_distance", "max_distance", "signal_quality", "covariance", "valid"):
-        if hasattr(report, name):
-            v = getattr(report, name)
-            out[name] = bool(v) if name == "valid" else int(v)
+        return {"sent": False, "condition": "nothing yet", "valid": False}
+    current = getattr(report, "current_distance", None)
+    out: dict[str, Any] = {"sent": current is not None, "condition": str(getattr(report, "condition", "")),
+                           "valid": bool(getattr(report, "valid", False))}
+    if current is not None:
+        for name in ("current_distance", "min_distance", "max_distance", "signal_quality", "covariance"):
+            v = getattr(report, name, None)
+            out[name] = None if v is None else int(v)
     return out
 
 
@@ -363,9 +370,12 @@ function poll() {{
     const w = s.wire;
     if (w.sent) {{
       set("wire-distance-cm", w.current_distance); set("wire-quality", w.signal_quality);
-      set("wire-valid", w.valid ? "a measurement" : "no measurement");
-      document.getElementById("wire").className = w.valid ? "ok" : "bad";
-    }} else {{ set("wire-valid", "nothing sent"); }}
+      set("wire-valid", w.valid ? "a measurement" : w.condition);
+    }} else {{
+      set("wire-distance-cm", "-"); set("wire-quality", "-");
+      set("wire-valid", "nothing sent (" + w.condition + ")");
+    }}
+    document.getElementById("wire").className = w.valid ? "ok" : "bad";
     const f = s.frame;
     if (f) {{
       set("distance-m", f.distance_m === null ? "none (" + f.reason + ")" : f.distance_m.toFixed(3));

@@ -24,6 +24,8 @@ which ArduPilot and PX4 answer) and holds measurements back while it is not.
 :class:`SendClock` sends each new estimate as soon as it exists (at most
 ``mavlink.rate_hz`` per second), HEARTBEAT at 1 Hz, and a STATUSTEXT when the wire
 condition changes.
+
+Longer than 400 lines because the wire contract, the send clock and the link share one state; splitting the contract out is the next step.
 """
 
 from __future__ import annotations

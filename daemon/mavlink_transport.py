@@ -22,6 +22,8 @@ before anything else; :meth:`Stream.overdue` says when a frame the kernel still
 holds (unsent, or sent and not acknowledged) has passed its deadline, so the link
 can discard it (:meth:`Stream.discard`: a TCP reset, a tty output flush) before it
 arrives old.
+
+Longer than 400 lines because each transport (udpin, udpout, tcp, tcpin, serial) keeps its non-blocking send and bounded read together.
 """
 
 from __future__ import annotations

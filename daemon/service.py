@@ -24,6 +24,8 @@ the frame log's metadata in :mod:`~uav_depth.daemon.framelog`.
 
 Signal handlers (in the CLI) only set events: ``stop``, :meth:`Service.request_log_frame`,
 :meth:`Service.request_reload`.
+
+Longer than 400 lines because start-up, the main loop and the bounded shutdown are one lifecycle; stage, capture and health live apart.
 """
 
 from __future__ import annotations

@@ -17,6 +17,8 @@ renders. Frames involved:
 
 A :class:`~uav_depth.sim.scene.Pose` has the camera axes as rotation columns and
 the camera centre as position, both in world coordinates.
+
+Longer than 400 lines because the pose tracker, its staleness rules and the truth recorder share the autopilot's message handling.
 """
 
 from __future__ import annotations

@@ -93,3 +93,13 @@ def test_seams_import_only_the_core():
     for seam in SEAMS:
         above = {m for m in graph.find_upstream_modules(seam) if not m.startswith("uav_depth.core")}
         assert above == set(), f"{seam} imports {sorted(above)}: a seam may import only uav_depth.core"
+
+
+def test_no_module_over_400_lines_without_a_reason():
+    too_long = []
+    for folder in FOLDERS:
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            text = path.read_text()
+            if text.count("\n") > 400 and "Longer than 400 lines because" not in text[:4000]:
+                too_long.append(f"{path.relative_to(ROOT)} ({text.count(chr(10))} lines)")
+    assert too_long == [], "say why in the module docstring ('Longer than 400 lines because ...') or split it"

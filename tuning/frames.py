@@ -121,10 +121,16 @@ def load_frame(record: FrameRecord) -> FrameData:
                      focal, baseline, source)
 
 
+#: Share of a single session's frames "auto" holds out.
+AUTO_FRACTION = 0.3
+
+
 def split_records(logdir: str | os.PathLike[str], holdout: str | None) -> tuple[list[FrameRecord], list[FrameRecord]]:
     """Train and held-out frame records of ``logdir`` by the ``--holdout`` rule.
 
-    ``holdout`` is one of: empty/None (no held-out frames); a directory (a session
+    ``holdout`` is one of: empty/None/"none" (no held-out frames); "auto" (by session:
+    the last third of the sessions, at least one, when there are two or more; else the
+    last 30 % of the frames when there are two or more; else none); a directory (a session
     or a directory of sessions, all held out; the train frames are ``logdir``'s);
     a fraction 0 < f < 1 (the last ceil(f * n) frames of each session, at least one
     frame stays for training); or a comma list of session names, ``session/frame``
@@ -133,8 +139,17 @@ def split_records(logdir: str | os.PathLike[str], holdout: str | None) -> tuple[
     records = list(iter_frames(logdir))
     if not records:
         raise FileFormatError(f"{logdir}: no frames found")
-    if not holdout:
+    if not holdout or holdout == "none":
         return records, []
+    if holdout == "auto":
+        sessions = find_sessions(logdir)
+        if len(sessions) >= 2:
+            held_names = {s.path.resolve() for s in sessions[len(sessions) - math.ceil(len(sessions) / 3):]}
+            held = [r for r in records if r.session.path.resolve() in held_names]
+            return [r for r in records if r not in held], held
+        if len(records) < 2:
+            return records, []
+        holdout = str(AUTO_FRACTION)
     path = Path(holdout)
     if path.is_dir():
         held = list(iter_frames(path))

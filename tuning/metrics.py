@@ -1,6 +1,27 @@
 """Disparity quality metrics: the tuner's fitness and the evaluation reports.
 
-Conventions (one place):
+Two conventions, named in every report (:data:`CONVENTIONS`):
+
+``bench`` (the default for reports; :func:`bench_scores`), as Middlebury and the
+KITTI devkit score a method:
+
+- error only over pixels with ground truth (reference NaN, inf or <= 0 is
+  unknown: occluded or not measured, so every scored pixel is non-occluded);
+- holes in the estimate filled first as the KITTI devkit does
+  (:func:`fill_background`: along the row, each gap takes the smaller, i.e. the
+  background, of its two valid neighbours; the row's ends extend the nearest
+  valid value), so answering fewer pixels is never rewarded; ``density``, the
+  fraction of ground-truth pixels answered before the filling, is reported
+  beside it;
+- mae, rmse (px), bad1/bad2/bad4 (% of ground-truth pixels off by more than
+  1/2/4 px), psnr against a fixed peak: the search range
+  (min_disparity + num_disparities, px), the same for every frame and candidate;
+- the left strip the parameters cannot change is left out: columns left of
+  ``strip_px`` = the frame's largest ground-truth disparity (a left pixel there may
+  see its match outside the right image). It depends on the frame only, so every
+  candidate is scored on the same pixels.
+
+``paper`` (Lin et al. 2025; :func:`score`), kept for the faithful mode:
 - Reference pixels that are NaN, inf or <= 0 are unknown and ignored.
 - Estimate pixels that are NaN or inf count as disparity 0, never skipped: a
   matcher that answers nothing must not score best.
@@ -27,9 +48,14 @@ except ImportError:  # pragma: no cover - exercised only without the tuning extr
     structural_similarity = None
 
 SSIM_WIN = 7
-METRIC_NAMES = ("mse", "psnr", "ssim", "bad1", "bad2", "valid")
+#: The metric conventions a report can use; the first is the default.
+CONVENTIONS = ("bench", "paper")
+#: Metrics of each convention, in report order.
+METRIC_NAMES = {"paper": ("mse", "psnr", "ssim", "bad1", "bad2", "valid"),
+                "bench": ("mae", "rmse", "bad1", "bad2", "bad4", "psnr", "density")}
 #: Direction of each metric: +1 larger is better, -1 smaller is better.
-DIRECTION = {"mse": -1, "psnr": +1, "ssim": +1, "bad1": -1, "bad2": -1, "valid": +1}
+DIRECTION = {"mse": -1, "psnr": +1, "ssim": +1, "bad1": -1, "bad2": -1, "bad4": -1, "valid": +1, "mae": -1,
+             "rmse": -1, "density": +1, "branch": -1}
 
 
 @dataclass(frozen=True)
@@ -86,10 +112,14 @@ def peak(reference: np.ndarray) -> float:
     return float(ref[reference_valid(ref)].max())
 
 
+def psnr_db(mse_px2: float, peak_px: float) -> float:
+    """PSNR in dB of a mean squared error against a peak (the one PSNR formula of the project)."""
+    return math.inf if mse_px2 == 0 else float(10.0 * math.log10(peak_px * peak_px / mse_px2))
+
+
 def psnr(reference: np.ndarray, estimate: np.ndarray) -> float:
-    err = mse(reference, estimate)
-    top = peak(reference)
-    return math.inf if err == 0 else float(10.0 * math.log10(top * top / err))
+    """The paper's PSNR: peak = the reference's largest valid disparity."""
+    return psnr_db(mse(reference, estimate), peak(reference))
 
 
 def ssim(reference: np.ndarray, estimate: np.ndarray) -> float:
@@ -117,12 +147,11 @@ def valid_fraction(reference: np.ndarray, estimate: np.ndarray) -> float:
 
 
 def score(reference: np.ndarray, estimate: np.ndarray) -> Scores:
-    """All metrics of ``estimate`` against ``reference`` (both (H, W) px)."""
+    """All metrics of ``estimate`` against ``reference`` (both (H, W) px), paper convention."""
     m = mse(reference, estimate)
-    top = peak(reference)
     return Scores(
         mse=m,
-        psnr=math.inf if m == 0 else float(10.0 * math.log10(top * top / m)),
+        psnr=psnr_db(m, peak(reference)),
         ssim=ssim(reference, estimate),
         bad1=bad(reference, estimate, 1.0),
         bad2=bad(reference, estimate, 2.0),
@@ -131,6 +160,61 @@ def score(reference: np.ndarray, estimate: np.ndarray) -> Scores:
 
 
 METRICS = {"mse": mse, "psnr": psnr, "ssim": ssim}
+
+
+# -- benchmark convention ----------------------------------------------------------------------------------------
+
+def fill_background(estimate: np.ndarray) -> np.ndarray:
+    """Holes (NaN/inf) filled as the KITTI devkit's ``interpolateBackground`` does, row by row.
+
+    A gap between two valid pixels of a row takes the smaller of the two (the
+    background: a hole next to an object edge is an occlusion of what lies behind);
+    a gap at either end of a row takes the nearest valid value; a row with no
+    valid pixel becomes 0. Returns a float64 copy.
+    """
+    est = np.asarray(estimate, dtype=np.float64)
+    valid = np.isfinite(est)
+    h, w = est.shape
+    cols = np.arange(w)
+    left_idx = np.maximum.accumulate(np.where(valid, cols, -1), axis=1)
+    right_idx = np.minimum.accumulate(np.where(valid, cols, w)[:, ::-1], axis=1)[:, ::-1]
+    rows = np.arange(h)[:, None]
+    left_v = np.where(left_idx >= 0, est[rows, np.clip(left_idx, 0, w - 1)], np.nan)
+    right_v = np.where(right_idx < w, est[rows, np.clip(right_idx, 0, w - 1)], np.nan)
+    both = np.isfinite(left_v) & np.isfinite(right_v)
+    fill = np.where(both, np.minimum(left_v, right_v), np.where(np.isfinite(left_v), left_v, right_v))
+    out = np.where(valid, est, fill)
+    return np.where(np.isfinite(out), out, 0.0)
+
+
+def strip_px(reference: np.ndarray) -> int:
+    """Width of the left strip the bench convention leaves out: the largest ground-truth disparity, px."""
+    ref = np.asarray(reference, dtype=np.float64)
+    valid = reference_valid(ref)
+    return int(math.ceil(ref[valid].max())) if valid.any() else 0
+
+
+def bench_scores(reference: np.ndarray, estimate: np.ndarray, peak_px: float, strip: int = 0) -> dict[str, float]:
+    """Benchmark-convention metrics (module docstring) of ``estimate`` against ``reference``, both (H, W) px.
+
+    ``peak_px``: PSNR's fixed peak (the search range); ``strip``: columns left of it
+    are not scored. Raises FrameError when no ground-truth pixel is left to score.
+    """
+    ref = np.asarray(reference, dtype=np.float64)
+    est = np.asarray(estimate, dtype=np.float64)
+    if ref.shape != est.shape or ref.ndim != 2:
+        raise FrameError(f"reference {ref.shape} and estimate {est.shape} must be the same 2-D shape")
+    filled = fill_background(est)
+    valid = reference_valid(ref)
+    valid[:, :max(0, strip)] = False
+    if not valid.any():
+        raise FrameError("reference has no valid pixel right of the unmatchable strip")
+    err = np.abs(filled[valid] - ref[valid])
+    m = float(np.mean(err ** 2))
+    return {"mae": float(err.mean()), "rmse": math.sqrt(m),
+            "bad1": float(100.0 * np.mean(err > 1.0)), "bad2": float(100.0 * np.mean(err > 2.0)),
+            "bad4": float(100.0 * np.mean(err > 4.0)), "psnr": psnr_db(m, peak_px),
+            "density": float(np.isfinite(est[valid]).mean())}
 
 
 # -- branch-aware: the number the drone uses ---------------------------------------------------------------------

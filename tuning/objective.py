@@ -6,7 +6,16 @@ raises, or leaves a frame without a single valid pixel, is a FAILED evaluation
 with its reason and the worst fitness; it never stops a run.
 
 :data:`FITNESS` is the registry (name -> :class:`Fitness`); the CLI's
-``--metric`` choices are its keys.
+``--metric`` choices are its keys. Two families:
+
+- the *flown* fitnesses (``flown``, ``flown-bad2``) score what the daemon's
+  ranging consumes: the matcher's measured pixels where the left-right confidence
+  reaches the ranging's ``min_confidence`` (:func:`flown_map`), inside the frame's
+  ranging region, in the benchmark convention (``metrics.bench_scores``), plus the
+  branch-distance error of the daemon's own ranging stage where the frame knows
+  the truth. WLS smoothing never reaches them, so its parameters are not searched.
+- the paper's fitnesses (``mse``, ``psnr``, ``ssim``, ``bad2``) score the WLS map in
+  the paper's convention (invalid = 0, per-frame peak): the faithful mode.
 """
 
 from __future__ import annotations
@@ -19,9 +28,11 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from uav_depth.core.disparity import DisparityPipeline, DisparityResult
+from uav_depth.core.disparity import DisparityPipeline, DisparityResult, flight_pipeline
 from uav_depth.core.errors import ParameterWarning
+from uav_depth.core.calibration import Calibration
 from uav_depth.core.params import StereoParams, params_from_dict
+from uav_depth.daemon.ranging import Ranger, RangingConfig, resolve_roi
 
 from uav_depth.tuning import metrics
 from uav_depth.tuning.frames import FrameData, FrameSet
@@ -57,6 +68,56 @@ def scored_box(params: StereoParams, shape: tuple[int, ...]) -> metrics.Box:
     return params.compute.roi_pixels(shape[1], shape[0])
 
 
+#: The ranging settings the flown fitness assumes (the daemon's defaults: min_confidence 0.5 ...).
+FLOWN_RANGING = RangingConfig()
+#: Weight of the branch-distance error in the flown fitness: 10 % of branch error costs as much as 1 px
+#: of mean disparity error (a 1 px error is about 10 % of distance at 10 px of disparity).
+BRANCH_PX_PER_PCT = 0.1
+
+
+def flown_map(res: DisparityResult, min_confidence: float = FLOWN_RANGING.min_confidence) -> np.ndarray:
+    """(H, W) float32 px: what the ranging stage uses, NaN elsewhere.
+
+    The measured pixels (``DisparityResult.measured``, no WLS fill-in) whose
+    left-right confidence is at least ``min_confidence``, as ``Ranger.measure``
+    selects them (it also drops disparities below its distance floor).
+    """
+    if res.confidence is None:
+        return res.measured
+    with np.errstate(invalid="ignore"):
+        return np.where(res.confidence >= min_confidence, res.measured, np.float32(np.nan)).astype(np.float32)
+
+
+def ranging_box(frame: FrameData, params: StereoParams) -> metrics.Box:
+    """Where the flown fitness scores: the frame's logged ranging ROI, else the candidate's scored box."""
+    if frame.roi is not None:
+        h, w = frame.left.shape[:2]
+        return resolve_roi(frame.roi, w, h)
+    return scored_box(params, frame.left.shape)
+
+
+def bench(frame: FrameData, estimate: np.ndarray, box: metrics.Box) -> dict[str, float]:
+    """Benchmark-convention metrics of ``estimate`` against the frame's reference inside ``box``.
+
+    The strip and the PSNR peak come from the frame's ground truth alone (the same for
+    every candidate): strip = its largest disparity, peak = that rounded up to a multiple
+    of 16 (the search range that covers it).
+    """
+    strip = metrics.strip_px(frame.reference)
+    peak = 16.0 * max(1, math.ceil(strip / 16.0))
+    ref, est = metrics.in_box(box, frame.reference, estimate)
+    return metrics.bench_scores(ref, est, peak, strip - box[0])
+
+
+def _flown(metric: str) -> Callable[[FrameData, DisparityResult, StereoParams], float]:
+    def score(frame: FrameData, res: DisparityResult, params: StereoParams) -> float:
+        value = bench(frame, flown_map(res), ranging_box(frame, params))[metric]
+        if frame.has_branch:
+            value += BRANCH_PX_PER_PCT * _branch(frame, res, params)
+        return value
+    return score
+
+
 def _ref(fn: Callable[[np.ndarray, np.ndarray], float]) -> Callable[[FrameData, DisparityResult, StereoParams], float]:
     return lambda frame, res, params: fn(*metrics.in_box(scored_box(params, frame.reference.shape),
                                                          frame.reference, res.disparity))
@@ -64,10 +125,6 @@ def _ref(fn: Callable[[np.ndarray, np.ndarray], float]) -> Callable[[FrameData, 
 
 def branch_measurement(frame: FrameData, res: DisparityResult, params: StereoParams) -> tuple[float | None, float]:
     """The daemon's own ranging stage on this result: (distance m or None, error % against the frame's truth)."""
-    from uav_depth.core.calibration import Calibration
-    from uav_depth.daemon.ranging import RangingConfig
-    from uav_depth.daemon.ranging import Ranger, resolve_roi
-
     h, w = frame.left.shape[:2]
     cal = Calibration(focal_px=frame.focal_px, baseline_m=frame.baseline_m, width=w, height=h)
     roi = resolve_roi(frame.roi, w, h)
@@ -89,6 +146,11 @@ def _selfsup(frame: FrameData, res: DisparityResult, params: StereoParams) -> fl
 
 
 FITNESS: dict[str, Fitness] = {
+    "flown": Fitness("flown", -1, ("reference",), _flown("mae"),
+                     "what flies: mean absolute error (px, benchmark convention) of the confident measured pixels "
+                     f"in the ranging region, + {BRANCH_PX_PER_PCT} x the branch-distance error (%) where known"),
+    "flown-bad2": Fitness("flown-bad2", -1, ("reference",), _flown("bad2"),
+                          "as flown, bad-2 (%) instead of the mean absolute error"),
     "mse": Fitness("mse", -1, ("reference",), _ref(metrics.mse), "mean squared disparity error, px^2"),
     "psnr": Fitness("psnr", +1, ("reference",), _ref(metrics.psnr), "peak signal-to-noise ratio, dB"),
     "ssim": Fitness("ssim", +1, ("reference",), _ref(metrics.ssim), "structural similarity, 0..1"),
@@ -129,27 +191,58 @@ def failed(fitness: Fitness, reason: str, seconds: float = 0.0) -> Evaluation:
     return Evaluation(FAILED, fitness.worst, reason=reason, seconds=seconds)
 
 
-def _frame_metrics(frame: FrameData, res: DisparityResult, params: StereoParams) -> dict[str, float]:
-    """Every metric the frame allows (reports)."""
+#: Fitnesses of the faithful mode (the paper's convention on the WLS map); the others fly.
+PAPER_FITNESS = ("mse", "psnr", "ssim", "bad2")
+#: Fitnesses that score only what the ranging consumes: WLS smoothing cannot change them.
+FLOWN_FITNESS = ("flown", "flown-bad2", "branch")
+
+
+def _frame_metrics(frame: FrameData, res: DisparityResult, params: StereoParams,
+                   convention: str = "bench", score_roi: tuple[float, float, float, float] | None = None
+                   ) -> dict[str, float]:
+    """Every metric the frame allows (reports), in ``convention`` (metrics.CONVENTIONS).
+
+    bench: the flown map (:func:`flown_map`) inside the scored box; paper: the WLS map, as the paper scores it.
+    The box: ``score_roi`` (fractions, as compute.roi) when given, so two files are compared in one box, else
+    the candidate's own. Where the frame knows the branch truth: ``branch`` (error %), ``truth_m``,
+    ``branch_m`` (the daemon's ranging, NaN when it measured nothing).
+    """
     out: dict[str, float] = {}
     if frame.reference is not None:
-        box = scored_box(params, frame.reference.shape)
-        out.update(metrics.score(*metrics.in_box(box, frame.reference, res.disparity)).as_dict())
+        box_params = params if score_roi is None else params.replace(**{"compute.roi": tuple(score_roi)})
+        box = scored_box(box_params, frame.reference.shape)
+        if convention == "bench":
+            out.update(bench(frame, flown_map(res), box))
+        else:
+            out.update(metrics.score(*metrics.in_box(box, frame.reference, res.disparity)).as_dict())
     if frame.has_branch:
-        out["branch"] = _branch(frame, res, params)
+        distance, err = branch_measurement(frame, res, params)
+        out.update(branch=err, truth_m=float(frame.branch_distance_m),
+                   branch_m=math.nan if distance is None else float(distance))
     return out
 
 
-def evaluate(params: StereoParams, frames: FrameSet, fitness: Fitness, full: bool = False) -> Evaluation:
+def default_convention(fitness: str) -> str:
+    """The metric convention a fitness's reports use: the paper's for the paper's fitnesses, else bench."""
+    return "paper" if fitness in PAPER_FITNESS else "bench"
+
+
+def evaluate(params: StereoParams, frames: FrameSet, fitness: Fitness, full: bool = False,
+             convention: str | None = None, score_roi: tuple[float, float, float, float] | None = None
+             ) -> Evaluation:
     """Score ``params`` on ``frames``; never raises for a bad candidate (returns FAILED).
 
     ``full``: every metric the frames allow, per frame (reports); otherwise the
     fitness alone (the search loop: the pipeline is nearly all of the cost, but
     extra metrics would still add a few % to every evaluation).
     """
+    convention = convention or default_convention(fitness.name)
     t_start = time.perf_counter()
     try:
-        pipeline = DisparityPipeline(params)
+        # A flown evaluation runs what flies (core.disparity.flight_pipeline: no WLS smoothing, the near
+        # check the ranging consults); the paper's fitnesses and selfsup score the WLS map.
+        flown = fitness.name in FLOWN_FITNESS and convention == "bench"
+        pipeline = flight_pipeline(params) if flown else DisparityPipeline(params)
         per_frame, extras, times = [], [], []
         for frame in frames.frames:
             t0 = time.perf_counter()
@@ -166,7 +259,7 @@ def evaluate(params: StereoParams, frames: FrameSet, fitness: Fitness, full: boo
                 return failed(fitness, f"{frame.key}: {fitness.name} is NaN", time.perf_counter() - t_start)
             per_frame.append(value)
             if full:
-                extras.append(_frame_metrics(frame, res, params))
+                extras.append(_frame_metrics(frame, res, params, convention, score_roi))
     except Exception as exc:  # a candidate that raises is a failed trial; the run goes on
         return failed(fitness, f"{type(exc).__name__}: {exc}", time.perf_counter() - t_start)
     names = sorted(set().union(*extras)) if extras else []
@@ -183,6 +276,7 @@ class Task:
     params: Mapping[str, Any]
     frameset: str = "train"
     full: bool = False
+    convention: str | None = None     # None: the fitness's own (default_convention)
 
 
 class Objective:
@@ -197,4 +291,4 @@ class Objective:
             params = params_from_dict(task.params)
         except Exception as exc:
             return failed(self.fitness, f"{type(exc).__name__}: {exc}")
-        return evaluate(params, self.framesets[task.frameset], self.fitness, task.full)
+        return evaluate(params, self.framesets[task.frameset], self.fitness, task.full, task.convention)

@@ -29,11 +29,11 @@ from uav_depth.core.params import StereoParams
 from uav_depth.core.session import colourise
 
 from uav_depth.tuning.frames import FrameSet
-from uav_depth.tuning.objective import FITNESS, Evaluation
+from uav_depth.tuning.objective import FITNESS, Evaluation, flown_map
 
 #: The paper's reported change of its tuned parameters against its manual configuration, %.
 PAPER_CHANGE = {"mse": -42.86, "psnr": 8.47, "ssim": 28.52}
-TABLE_METRICS = ("mse", "psnr", "ssim", "bad2", "branch", "valid")
+TABLE_METRICS = ("mae", "rmse", "mse", "psnr", "ssim", "bad1", "bad2", "bad4", "branch", "density", "valid")
 
 
 def change_pct(base: float, tuned: float) -> float:
@@ -70,10 +70,19 @@ def sources_text(sources: Mapping[str, int]) -> str:
 MANUAL_BASELINE = "the manual baseline (OpenCV's sample values)"
 
 
+CONVENTION_TEXT = {
+    "bench": "benchmark convention (the map the daemon ranges on: confident measured pixels; error over "
+             "ground-truth pixels, holes filled along the row as the KITTI devkit does, density beside it, the "
+             "unmatchable left strip left out, PSNR against the search range)",
+    "paper": "the paper's convention (the WLS map; unanswered pixels count as 0, PSNR peak per frame)",
+}
+
+
 def table_markdown(cmp: Mapping[str, dict], metric: str, references: Mapping[str, Mapping[str, int]] | None = None,
-                   base: str = MANUAL_BASELINE) -> str:
-    lines = [f"Tuned ({metric}) vs the base it started from: {base}. "
-             "Paper: its tuned vs manual configuration, one pair.", ""]
+                   base: str = MANUAL_BASELINE, convention: str = "paper",
+                   selection: Mapping[str, Any] | None = None) -> str:
+    lines = [f"Tuned ({metric}) vs the base it started from: {base}. Metrics: {CONVENTION_TEXT[convention]}."
+             + (" Paper: its tuned vs manual configuration, one pair." if convention == "paper" else ""), ""]
     lines += [f"Reference disparity of the {name} frames: {sources_text(sources)}."
               for name, sources in (references or {}).items() if sources]
     if len(lines) > 2:
@@ -81,9 +90,19 @@ def table_markdown(cmp: Mapping[str, dict], metric: str, references: Mapping[str
     lines += ["| frames | metric | base | tuned | change | paper's change |", "|---|---|---|---|---|---|"]
     for name, block in cmp.items():
         for m, row in block["metrics"].items():
-            paper = f"{PAPER_CHANGE[m]:+.2f}%" if m in PAPER_CHANGE else ""
+            paper = f"{PAPER_CHANGE[m]:+.2f}%" if m in PAPER_CHANGE and convention == "paper" else ""
             lines.append(f"| {name} ({block['frames']}) | {m} | {_f(row['base'])} | {_f(row['tuned'])} | "
                          f"{_pct(row['change_pct'])} | {paper} |")
+    if selection:
+        lines += ["", f"Choice on the {selection['on']} frames among the best training candidates ({metric}; "
+                  "fragile ones cannot win):", "", "| candidate | train | held-out | note |", "|---|---|---|---|"]
+        for i, row in enumerate(selection["candidates"]):
+            note = "base" if i == 0 else ""
+            if i == selection["winner"]:
+                note = (note + " chosen").strip()
+            if row.get("fragile"):
+                note = (note + " rejected: " + row["fragile"]).strip()
+            lines.append(f"| {i} | {_f(row['train'])} | {_f(row['holdout'])} | {note} |")
     return "\n".join(lines) + "\n"
 
 
@@ -172,10 +191,10 @@ def plot_pareto(path: Path, points: Sequence[tuple[float, float]], front: Sequen
 
 
 def side_by_side(path: Path, frame, base: StereoParams, tuned: StereoParams) -> None:
-    """reference | base | tuned disparity (one colour scale) as one PNG."""
+    """reference | base | tuned disparity (one colour scale) as one PNG: the map the daemon ranges on."""
     import cv2
 
-    maps = [DisparityPipeline(p).compute(frame.left, frame.right) for p in (base, tuned)]
+    maps = [flown_map(DisparityPipeline(p, refine=False).run(frame.left, frame.right)) for p in (base, tuned)]
     if frame.reference is not None:
         maps.insert(0, frame.reference)
     finite = [m[np.isfinite(m)] for m in maps]
@@ -198,7 +217,8 @@ def write_report(outdir: str | Path, summary: Mapping[str, Any], config: Mapping
     (out / "config.yaml").write_text(yaml.safe_dump(_clean(config), sort_keys=False))
     if summary.get("comparison"):
         (out / "table.md").write_text(table_markdown(summary["comparison"], metric, summary.get("references"),
-                                                     summary.get("base", MANUAL_BASELINE)))
+                                                     summary.get("base", MANUAL_BASELINE),
+                                                     summary.get("convention", "paper"), summary.get("selection")))
     runs = summary["runs"]
     plot_convergence(out / "convergence.png", [r["history"] for r in runs], summary["baseline"]["value"], metric,
                      f"{summary['config']['optimizer']}, {metric} "

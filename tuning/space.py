@@ -14,6 +14,8 @@ schema keys included).
   schema key, with a scale that suits the key (log for penalties and lambda),
   bounds inside what OpenCV can compute, and the rules of the schema (odd,
   multiple of 16, p2 > p1) declared so every decoded candidate is valid.
+
+Longer than 400 lines because the paper's 29-gene encoding and the schema-derived space share their bounds and constraints in one place.
 """
 
 from __future__ import annotations
@@ -209,6 +211,14 @@ SCALES: dict[str, str] = {
 #: and the measured comparisons in the README were made without it; ``--keys`` adds it.
 DEFAULT_KEYS: tuple[str, ...] = tuple(s.key for s in SPECS if s.paper) + ("sgbm.block_size",)
 
+#: Keys whose value never reaches the flown result: the daemon ranges on the matcher's measured pixels and
+#: their left-right confidence, which OpenCV computes before, and independently of, the WLS smoothing
+#: (measured: distance, sigma, quality and confidence bit-identical for lambda 100..90000, sigma 0.3..5).
+NOT_FLOWN_KEYS: tuple[str, ...] = ("wls.lambda", "wls.sigma_color")
+
+#: Keys the flown fitnesses tune by default: the default keys that change what flies.
+FLOWN_KEYS: tuple[str, ...] = tuple(k for k in DEFAULT_KEYS if k not in NOT_FLOWN_KEYS)
+
 #: Speed levers of the schema that trade accuracy for frame time; added to the default keys
 #: when the search has a frame-time budget (``--max-ms``), so the Pareto front has fast options.
 SPEED_KEYS: tuple[str, ...] = tuple(k for k in ("compute.scale", "compute.grey") if k in SPEC_BY_KEY)
@@ -389,15 +399,17 @@ class SchemaSpace:
         return [d.describe() for d in self.dims]
 
 
-def parse_keys(text: str | None, speed: bool = False) -> tuple[str, ...]:
-    """``--keys``: comma-separated schema keys; "default" (or None) stands for DEFAULT_KEYS, "paper"
-    for the paper's nine, "speed" for SPEED_KEYS. ``speed``: None means DEFAULT_KEYS + SPEED_KEYS."""
+def parse_keys(text: str | None, speed: bool = False, flown: bool = False) -> tuple[str, ...]:
+    """``--keys``: comma-separated schema keys; "default" (or None) stands for DEFAULT_KEYS (FLOWN_KEYS
+    when ``flown``: the fitness scores what flies), "paper" for the paper's nine, "speed" for SPEED_KEYS.
+    ``speed``: None means the default + SPEED_KEYS. A flown fitness refuses keys that cannot change it."""
+    default = FLOWN_KEYS if flown else DEFAULT_KEYS
     if not text:
-        return DEFAULT_KEYS + SPEED_KEYS if speed else DEFAULT_KEYS
+        return default + SPEED_KEYS if speed else default
     keys: list[str] = []
     for part in (p.strip() for p in text.split(",") if p.strip()):
         if part == "default":
-            keys += DEFAULT_KEYS
+            keys += default
         elif part == "paper":
             keys += [s.key for s in SPECS if s.paper]
         elif part == "speed":
@@ -406,6 +418,9 @@ def parse_keys(text: str | None, speed: bool = False) -> tuple[str, ...]:
             keys.append(part)
     for k in keys:
         dim_for(k)  # raises a ConfigError naming the bad key
+        if flown and k in NOT_FLOWN_KEYS:
+            raise ConfigError("--keys", "must change what flies: the flown fitness never sees the WLS smoothing, "
+                              f"so {', '.join(NOT_FLOWN_KEYS)} cannot be tuned by it", k)
     return tuple(dict.fromkeys(keys))
 
 

@@ -10,6 +10,8 @@ Identical candidates are evaluated once: each is keyed by a hash of its
 parameters, the frames' digest, the fitness and :data:`EVAL_VERSION`; elites and
 re-proposed parameter sets are answered from that cache (memory, then the run
 store), which is also how ``--resume`` replays a killed run to the very same end.
+
+Longer than 400 lines because the study's loop, its held-out choice and its resume are one orchestration over the store.
 """
 
 from __future__ import annotations
@@ -25,9 +27,9 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.core.disparity import flight_pipeline
 from uav_depth.core.errors import ConfigError, UavDepthError
-from uav_depth.core.params import StereoParams, params_from_dict
+from uav_depth.core.params import OPENCV_COST_MAX, StereoParams, params_from_dict
 
 from uav_depth.tuning.executor import Executor, run_all
 from uav_depth.tuning.frames import FrameSet
@@ -49,8 +51,8 @@ class TuneInterrupted(UavDepthError):
 class StudyConfig:
     """Everything that determines a study's result (workers and time budgets do not)."""
 
-    metric: str = "mse"
-    optimizer: str = "ga"
+    metric: str = "flown"
+    optimizer: str = "tpe"
     population: int = 30
     generations: int = 100
     runs: int = 1
@@ -98,6 +100,7 @@ class StudyResult:
     evaluated: int          # evaluations computed in this invocation
     cached: int             # proposals answered from the cache / store
     wall_s: float
+    timed_out: bool = False  # --timeout stopped it before its last generation
 
     @property
     def best(self) -> RunResult:
@@ -122,8 +125,11 @@ class Study:
 
     def __init__(self, config: StudyConfig, train: FrameSet, executor: Executor, store: RunStore,
                  base: StereoParams, progress: Callable[[int, float], None] | None = None,
-                 stop: threading.Event | None = None):
+                 stop: threading.Event | None = None, timeout_s: float | None = None):
         self.config, self.train, self.executor, self.store, self.base = config, train, executor, store, base
+        self.timeout_s = timeout_s
+        self._deadline = math.inf
+        self.timed_out = False
         self.fitness = FITNESS[config.metric]
         self.space = make_space(config.optimizer, config.keys)
         self.digest = train.digest()
@@ -136,10 +142,12 @@ class Study:
     # -- identity and resume ------------------------------------------------------------------------------------
 
     def identity(self) -> dict[str, Any]:
-        """What a resumed run must share with the stored one."""
+        """What a resumed run must share with the stored one.
+
+        Not the number of generations or runs: generation g of run i depends only on
+        (seed, i, the generations before it), so a resumed study may be extended."""
         return {"metric": self.config.metric, "optimizer": self.config.optimizer,
-                "population": self.config.population, "generations": self.config.generations,
-                "runs": self.config.runs, "seed": self.config.seed, "space": describe_space(self.space),
+                "population": self.config.population, "seed": self.config.seed, "space": describe_space(self.space),
                 "frames": self.digest, "frame_keys": self.train.keys, "base": self.base.to_dict(),
                 "eval_version": EVAL_VERSION}
 
@@ -157,6 +165,7 @@ class Study:
             if stored.get(key) != ident[key]:
                 raise ConfigError(f"--resume ({key})", "must match the stored run",
                                   f"{_short(ident[key])} (stored: {_short(stored.get(key))})")
+        self.store.set_config(ident)
 
     # -- evaluation ---------------------------------------------------------------------------------------------
 
@@ -227,6 +236,9 @@ class Study:
         for gen in range(self.config.generations):
             if self.stop.is_set():
                 raise self.interrupted()
+            if (gen > 0 or run > 0) and time.monotonic() > self._deadline:
+                self.timed_out = True     # the first generation always runs: there is a result to report
+                break
             genomes = opt.ask()
             cands = [self.candidate(g) for g in genomes]
             before = self.evaluated
@@ -244,11 +256,22 @@ class Study:
         return res
 
     def run(self) -> StudyResult:
+        """Every run; with ``timeout_s``, no generation but the first starts after it (each one started is finished, so
+        what was evaluated is a prefix of the full study and ``--resume`` continues it exactly)."""
         t0 = time.perf_counter()
+        if self.timeout_s is not None:
+            self._deadline = time.monotonic() + self.timeout_s
         baseline = self.baseline()
         seeds = np.random.SeedSequence(self.config.seed).spawn(self.config.runs)
-        runs = [self.run_one(i, s) for i, s in enumerate(seeds)]
-        return StudyResult(self.config, runs, baseline, self.evaluated, self.cached, time.perf_counter() - t0)
+        runs = []
+        for i, s in enumerate(seeds):
+            run = self.run_one(i, s)
+            if run.proposals:
+                runs.append(run)
+            if self.timed_out:
+                break
+        return StudyResult(self.config, runs, baseline, self.evaluated, self.cached, time.perf_counter() - t0,
+                           self.timed_out)
 
 
 def _short(value: Any) -> str:
@@ -258,12 +281,13 @@ def _short(value: Any) -> str:
 
 # -- after the search: held-out scores, Pareto front, time budget -------------------------------------------------
 
-def full_scores(executor: Executor, params: Sequence[StereoParams], framesets: Sequence[str]) -> dict:
-    """Every metric of each params on each named frame set: {(i, set): Evaluation}."""
+def full_scores(executor: Executor, params: Sequence[StereoParams], framesets: Sequence[str],
+                convention: str | None = None) -> dict:
+    """Every metric (in ``convention``) of each params on each named frame set: {(i, set): Evaluation}."""
     tasks, index = [], []
     for i, p in enumerate(params):
         for name in framesets:
-            tasks.append(Task(p.to_dict(), name, full=True))
+            tasks.append(Task(p.to_dict(), name, full=True, convention=convention))
             index.append((i, name))
     return dict(zip(index, run_all(executor, tasks)))
 
@@ -288,9 +312,9 @@ def search_front(store: RunStore, fitness_name: str) -> list[dict[str, Any]]:
 
 
 def time_params(params: StereoParams, frames: FrameSet, repeats: int = 3) -> float:
-    """Median over ``repeats`` of the mean ms per frame, in this process with OpenCV's default threads
-    (how the daemon runs it)."""
-    pipe = DisparityPipeline(params)
+    """Median over ``repeats`` of the mean ms per frame of what flies (``flight_pipeline``: no WLS
+    smoothing), in this process with OpenCV's default threads (how the daemon runs it)."""
+    pipe = flight_pipeline(params)
     samples = []
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -337,6 +361,91 @@ def choose_under_budget(store: RunStore, fitness_name: str, frames: FrameSet, ma
     return BudgetChoice(params_from_dict(best["params"]), best["value"], best["ms"], timed)
 
 
+# -- the choice: on frames the search did not see ------------------------------------------------------------------
+
+#: A candidate whose sgbm.p2 is above this fraction of OpenCV's 16-bit cost limit cannot win: the costs
+#: SGBM sums along its paths wrap a little above it on some images (issue 12: p2 27500 fine, 29666 broke
+#: other images), so a training frame's liking for it says nothing about the next image.
+FRAGILE_COST_FRACTION = 0.5
+#: How many of the best training candidates are scored on the held-out frames for the choice.
+SELECT_TOP = 6
+
+
+def fragile_reason(params: StereoParams) -> str | None:
+    """Why ``params`` may not win however well it scored (a cliff near it), or None."""
+    limit = FRAGILE_COST_FRACTION * OPENCV_COST_MAX
+    for name in ("p1", "p2"):
+        value = getattr(params.sgbm, name)
+        if value > limit:
+            return (f"sgbm.{name}={value} is above {FRAGILE_COST_FRACTION:g} x OpenCV's 16-bit cost limit "
+                    f"{OPENCV_COST_MAX} (fragile: costs wrap near it)")
+    return None
+
+
+@dataclass(frozen=True)
+class Selection:
+    """The winner chosen on held-out frames among the best training candidates.
+
+    ``rows``: one per candidate scored (the base first): params dict, train value,
+    held-out value (NaN without held-out frames), fragile reason. ``winner``: index
+    into rows of the best candidate other than the base that is not fragile (0 when
+    there is none); ``on``: "holdout" or "train" (the frames the choice was made on).
+    """
+
+    rows: list[dict[str, Any]]
+    winner: int
+    on: str
+
+    @property
+    def chosen(self) -> dict[str, Any]:
+        return self.rows[self.winner]
+
+    @property
+    def base(self) -> dict[str, Any]:
+        return self.rows[0]
+
+    @property
+    def beats_base(self) -> bool:
+        """The winner is not the base and scores strictly better than it on the choice's frames."""
+        key = self.on
+        return self.winner != 0 and self.chosen[f"{key}_utility"] > self.base[f"{key}_utility"]
+
+
+def top_candidates(store: RunStore, fitness_name: str, n: int = SELECT_TOP) -> list[tuple[dict[str, Any], float]]:
+    """The ``n`` best distinct (params, train value) of every stored evaluation, best first."""
+    fitness = FITNESS[fitness_name]
+    rows = [(fitness.utility(ev.value), i, params, ev.value) for i, (_, params, ev) in enumerate(store.evaluations())
+            if ev.status == OK and not params.get("invalid")]
+    rows.sort(key=lambda r: (-r[0], r[1]))
+    return [(params, value) for _, _, params, value in rows[:n]]
+
+
+def select(executor: Executor, fitness_name: str, base: StereoParams, base_train: float,
+           candidates: Sequence[tuple[dict[str, Any], float]], have_holdout: bool) -> Selection:
+    """Score the base and ``candidates`` on the held-out frames; the best non-fragile one wins.
+
+    Without held-out frames the choice falls back to the training value (reports say so).
+    Ties keep the earlier row (the base first, then the better training value).
+    """
+    fitness = FITNESS[fitness_name]
+    rows = [{"params": base.to_dict(), "train": base_train}]
+    for params, value in candidates:
+        if params != rows[0]["params"]:
+            rows.append({"params": params, "train": value})
+    held = run_all(executor, [Task(r["params"], "holdout") for r in rows]) if have_holdout else [None] * len(rows)
+    for r, ev in zip(rows, held):
+        r["holdout"] = math.nan if ev is None else (ev.value if ev.ok else fitness.worst)
+        r["fragile"] = fragile_reason(params_from_dict(r["params"]))
+        r["train_utility"] = fitness.utility(r["train"])
+        r["holdout_utility"] = fitness.utility(r["holdout"])
+    on = "holdout" if have_holdout else "train"
+    winner = 0
+    for i, r in enumerate(rows[1:], 1):
+        if r["fragile"] is None and (winner == 0 or r[f"{on}_utility"] > rows[winner][f"{on}_utility"]):
+            winner = i
+    return Selection(rows, winner, on)
+
+
 def result_summary(result: StudyResult) -> dict[str, Any]:
     cfg = asdict(result.config)
     return {"config": cfg, "wall_s": result.wall_s, "evaluated": result.evaluated, "cached": result.cached,
@@ -345,4 +454,4 @@ def result_summary(result: StudyResult) -> dict[str, Any]:
             "runs": [{"run": r.run, "best_value": r.best_value, "best_key": r.best_key,
                       "best_params": r.best_params, "history": r.history, "proposals": r.proposals,
                       "evaluated": r.evaluated, "failed": r.failed} for r in result.runs],
-            "best_run": result.best.run}
+            "best_run": result.best.run, "timed_out": result.timed_out}

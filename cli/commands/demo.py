@@ -25,27 +25,35 @@ def run(args: argparse.Namespace) -> int:
     from uav_depth.sim.scene import SceneConfig, write_session
 
     try:
-        from uav_depth.tuning.evaluate import evaluate_frames, mean_scores
+        from uav_depth.tuning.frames import FrameSet, load_frame
+        from uav_depth.tuning.objective import FITNESS, evaluate
     except ImportError:
-        evaluate_frames = None
+        evaluate = None
     scene = SceneConfig()
     # What flies: the flight settings for this camera and resolution (deploy/params-flight.yaml at 1280x720)
     params = flight_params(scene.focal_px, scene.baseline_m)
     prepare_output(args.out, args.overwrite)
     print(f"rendering {args.frames} synthetic pairs {scene.width}x{scene.height} into {args.out} ...", flush=True)
     write_session(args.out, args.frames, args.seed, scene, progress=progress_line("rendered"))
-    if evaluate_frames is None:
+    if evaluate is None:
         print("install uav-depth[tuning] to score it")
         return 0
     print(f"flying the flight parameters for f {scene.focal_px:g} px (hash {params.hash()}; "
           "uav-depth bench prints how they were chosen)")
-    scores = evaluate_frames(params, iter_frames(args.out, require_reference=True))
-    print(f"{'frame':<24}{'truth m':>9}{'measured m':>12}{'error %':>9}{'bad2%':>8}{'valid':>7}{'ms':>7}")
-    for s in scores:
-        meas = f"{s.branch_m:12.3f}" if s.branch_m is not None else f"{'none':>12}"
-        truth = f"{s.truth_m:9.3f}" if s.truth_m is not None else f"{'-':>9}"
-        print(f"{s.id:<24}{truth}{meas}{s.branch_err_pct:9.2f}{s.bad2:8.2f}{s.valid:7.3f}{s.ms:7.0f}")
-    m = mean_scores(scores)
-    print(f"branch distance: median error {m['branch_err_median_pct']:.2f}% over {len(scores)} frames "
-          f"(a frame measured nothing counts 100%); {m['ms']:.0f} ms per frame")
+    import math
+
+    import numpy as np
+
+    frames = FrameSet("demo", tuple(load_frame(r) for r in iter_frames(args.out, require_reference=True)))
+    ev = evaluate(params, frames, FITNESS["flown"], full=True)
+    print(f"{'frame':<24}{'truth m':>9}{'measured m':>12}{'error %':>9}{'bad2%':>8}{'density':>8}{'ms':>7}")
+    for f in ev.frame_metrics:
+        meas = f"{f['branch_m']:12.3f}" if math.isfinite(f.get("branch_m", math.nan)) else f"{'none':>12}"
+        truth = f"{f['truth_m']:9.3f}" if "truth_m" in f else f"{'-':>9}"
+        print(f"{f['id']:<24}{truth}{meas}{f.get('branch', math.nan):9.2f}{f['bad2']:8.2f}{f['density']:8.3f}"
+              f"{f['ms']:7.0f}")
+    errs = [f["branch"] for f in ev.frame_metrics if "branch" in f]
+    print(f"branch distance: median error {float(np.median(errs)) if errs else math.nan:.2f}% over "
+          f"{len(ev.frame_metrics)} frames (a frame measured nothing counts 100%); {ev.ms:.0f} ms per frame; "
+          "map metrics in the benchmark convention (uav-depth evaluate --help)")
     return 0

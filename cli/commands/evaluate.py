@@ -1,4 +1,4 @@
-"""uav-depth evaluate LOGDIR [--params FILE] [--set KEY=VALUE ...] [--roi L,T,R,B] [--json]."""
+"""uav-depth evaluate LOGDIR [--params FILE] [--set KEY=VALUE ...] [--roi L,T,R,B] [--convention bench|paper] [--json]."""
 
 from __future__ import annotations
 
@@ -14,6 +14,11 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--roi", metavar="L,T,R,B",
                    help="score inside this box, fractions of the image (as compute.roi), whatever the "
                         "parameters match: compares two files in the same box")
+    p.add_argument("--convention", choices=("bench", "paper"), default="bench",
+                   help="bench (default): the map the daemon ranges on (confident measured pixels), error over "
+                        "ground-truth pixels with holes filled as the KITTI devkit does, density beside it, the "
+                        "unmatchable left strip left out, PSNR against a fixed peak; paper: the WLS map, invalid "
+                        "= 0, PSNR peak per frame (Lin et al. 2025)")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
 
 
@@ -54,11 +59,15 @@ def run(args: argparse.Namespace) -> int:
     import json
     import math
 
-    from uav_depth.core.errors import FileFormatError
+    import numpy as np
+
+    from uav_depth.core.errors import FileFormatError, UavDepthError
     from uav_depth.core.params import DEFAULT_PARAMS, load_params
     from uav_depth.core.session import iter_frames
 
-    from uav_depth.tuning.evaluate import evaluate_frames, mean_scores
+    from uav_depth.tuning.frames import FrameSet, load_frame
+    from uav_depth.tuning.metrics import METRIC_NAMES
+    from uav_depth.tuning.objective import FITNESS, evaluate
     from uav_depth.tuning.reference.provenance import summarize_references
     from uav_depth.tuning.report import sources_text
 
@@ -67,42 +76,53 @@ def run(args: argparse.Namespace) -> int:
     if sets:
         params = params.replace(**sets)
     roi = parse_roi(args.roi)
-    frames = list(iter_frames(args.logdir, require_reference=True))
-    scores = evaluate_frames(params, frames, roi)
-    if not scores:
+    records = list(iter_frames(args.logdir, require_reference=True))
+    if not records:
         raise FileFormatError(f"{args.logdir}: no frame with a reference disparity (*_ref.npy/.pfm/.png)")
-    mean = mean_scores(scores)
-    references = summarize_references(frames)
+    frames = FrameSet("evaluate", tuple(load_frame(r) for r in records))
+    ev = evaluate(params, frames, FITNESS["flown" if args.convention == "bench" else "mse"], full=True,
+                  convention=args.convention, score_roi=roi)
+    if not ev.ok:
+        raise UavDepthError(f"{args.logdir}: these parameters cannot be scored: {ev.reason}")
+    names = list(METRIC_NAMES[args.convention])
     if roi is not None:
         region = f"--roi {list(roi)}"
     else:
         region = "whole frame" if params.compute.whole_frame else f"compute.roi {list(params.compute.roi)}"
+    references = summarize_references(records)
+    clean = lambda v: None if isinstance(v, float) and not math.isfinite(v) else v  # noqa: E731
+    per = []
+    for f in ev.frame_metrics:
+        row = {k: f[k] for k in ("id", *names, "ms")}
+        row.update(truth_m=f.get("truth_m"), branch_m=clean(f.get("branch_m")),
+                   branch_err_pct=f.get("branch", math.nan))
+        per.append(row)
+    errs = [r["branch_err_pct"] for r in per if math.isfinite(r["branch_err_pct"])]
+    mean = {k: ev.metrics[k] for k in names} | {"ms": ev.ms,
+            "branch_err_pct": float(np.mean(errs)) if errs else math.nan,
+            "branch_err_median_pct": float(np.median(errs)) if errs else math.nan}
     if args.json:
-        clean = lambda v: None if isinstance(v, float) and not math.isfinite(v) else v  # noqa: E731
-        doc = {"params_hash": params.hash(), "scored": region, "references": references,
-               "frames": [{k: clean(v) for k, v in s.as_dict().items()} for s in scores],
+        doc = {"params_hash": params.hash(), "scored": region, "convention": args.convention,
+               "references": references, "frames": [{k: clean(v) for k, v in r.items()} for r in per],
                "mean": {k: clean(v) for k, v in mean.items()}}
         print(json.dumps(doc, default=str))
         return 0
-    print(f"scored: {region}; measured against: "
-          + sources_text({src["description"]: src["frames"] for src in references["sources"]}))
-    truth = any(s.truth_m is not None for s in scores)
+    against = sources_text({src["description"]: src["frames"] for src in references["sources"]})
+    print(f"scored: {region}, {args.convention} convention; measured against: {against}")
+    truth = bool(errs) or any(r["truth_m"] is not None for r in per)
     head = f"{'truth m':>9}{'branch m':>10}{'err%':>7}" if truth else ""
-    print(f"{'frame':<28}{'mse':>9}{'psnr':>8}{'ssim':>7}{'bad1%':>8}{'bad2%':>8}{'valid':>7}{'ms':>7}{head}")
-    for s in scores:
+    print(f"{'frame':<28}" + "".join(f"{n:>9}" for n in (*names, "ms")) + head)
+    for r in per:
         tail = ""
         if truth:
-            t = f"{s.truth_m:9.3f}" if s.truth_m is not None else f"{'-':>9}"
-            b = f"{s.branch_m:10.3f}" if s.branch_m is not None else f"{'none':>10}"
-            e = f"{s.branch_err_pct:7.2f}" if math.isfinite(s.branch_err_pct) else f"{'-':>7}"
+            t = f"{r['truth_m']:9.3f}" if r["truth_m"] is not None else f"{'-':>9}"
+            b = f"{r['branch_m']:10.3f}" if r["branch_m"] is not None else f"{'none':>10}"
+            e = f"{r['branch_err_pct']:7.2f}" if math.isfinite(r["branch_err_pct"]) else f"{'-':>7}"
             tail = t + b + e
-        print(f"{s.id:<28}{s.mse:9.2f}{s.psnr:8.2f}{s.ssim:7.3f}{s.bad1:8.2f}{s.bad2:8.2f}{s.valid:7.3f}{s.ms:7.0f}"
-              f"{tail}")
-    m = mean
-    tail = f"{'':>19}{m['branch_err_pct']:7.2f}" if truth else ""
-    print(f"{'mean':<28}{m['mse']:9.2f}{m['psnr']:8.2f}{m['ssim']:7.3f}{m['bad1']:8.2f}{m['bad2']:8.2f}"
-          f"{m['valid']:7.3f}{m['ms']:7.0f}{tail}")
+        print(f"{r['id']:<28}" + "".join(f"{r[n]:9.3f}" for n in names) + f"{r['ms']:9.0f}" + tail)
+    print(f"{'mean':<28}" + "".join(f"{mean[n]:9.3f}" for n in names) + f"{mean['ms']:9.0f}"
+          + (f"{'':>19}{mean['branch_err_pct']:7.2f}" if truth else ""))
     if truth:
-        print(f"branch distance: median error {m['branch_err_median_pct']:.2f}%, mean {m['branch_err_pct']:.2f}% "
+        print(f"branch distance: median error {mean['branch_err_median_pct']:.2f}%, mean {mean['branch_err_pct']:.2f}% "
               "(a frame measured nothing counts 100%)")
     return 0

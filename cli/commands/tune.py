@@ -13,9 +13,12 @@ def configure(p: argparse.ArgumentParser) -> None:
     from uav_depth.tuning.optimizers import OPTIMIZERS
 
     p.add_argument("logdir", help="a session or a directory of sessions (log layout)")
-    p.add_argument("--metric", choices=list(FITNESS), default="mse",
-                   help="fitness: mse, psnr, ssim, bad2 need reference disparity; branch needs branch truth "
-                        "(synthetic sessions); selfsup needs nothing (default mse)")
+    p.add_argument("--metric", choices=list(FITNESS), default=None,
+                   help="fitness. flown (default): what the daemon ranges on, the confident measured pixels in "
+                        "the ranging region, mean absolute error in the benchmark convention, plus the branch "
+                        "distance error where the frames know it; flown-bad2: bad-2 instead; mse, psnr, ssim, "
+                        "bad2: the paper's, on the WLS map (default with ga-paper); branch: the branch distance "
+                        "alone (synthetic sessions); selfsup: needs no reference")
     p.add_argument("--optimizer", choices=list(OPTIMIZERS), default="tpe",
                    help="ga-paper: the paper's GA, faithful; ga: real-coded GA on the improved space from the "
                         "base parameters; random; tpe: Optuna's TPE on the improved space (default: it generalised "
@@ -28,20 +31,32 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="schema keys the improved space tunes, comma-separated: 'default' = the paper's nine + "
                         "sgbm.block_size, 'paper' = the nine, 'speed' = compute.scale and compute.grey (added to "
                         "the default with --max-ms); ignored by ga-paper")
-    p.add_argument("--holdout", default=None,
-                   help="frames kept out of tuning and scored at the end: a fraction (0.3), a directory, or "
-                        "a comma list of session names / session/frame keys / frame ids")
+    p.add_argument("--holdout", default="auto",
+                   help="frames the search never trains on; the winner is chosen on them and --out is written "
+                        "only when it beats the base on them. auto (default): the last third of the sessions "
+                        "(30%% of the frames of a single session); none; a fraction (0.3); a directory; or a "
+                        "comma list of session names / session/frame keys / frame ids")
+    p.add_argument("--force", action="store_true",
+                   help="write --out even when the result does not beat the base on the held-out frames")
+    p.add_argument("--timeout", type=float, default=None,
+                   help="stop starting generations after this many seconds and finish with what was found "
+                        "(--resume continues it)")
     p.add_argument("--base", default=None,
                    help="parameter file the search starts from and keeps for untuned keys "
                         "(default: the built-in manual baseline)")
     p.add_argument("--workers", type=int, default=None, help="evaluating processes (default: all cores)")
     p.add_argument("--ray-address", default=None,
                    help="evaluate on Ray: 'local' starts one here, 'auto' or ray://HOST:PORT joins a cluster")
-    p.add_argument("--out", default=None, help="write the chosen parameters here (atomic, validated, provenance)")
+    p.add_argument("--out", default=None,
+                   help="write the chosen parameters here (atomic, validated, provenance, the existing file's owner "
+                        "and mode kept) when they beat the base on the held-out frames; else OUT.rejected.yaml "
+                        "beside it and exit 1")
     p.add_argument("--report", default=None, help="write the report into this directory")
     p.add_argument("--store", default=None,
-                   help=f"SQLite run store (default: REPORT/store.sqlite, else ./{DEFAULT_STORE})")
-    p.add_argument("--resume", action="store_true", help="continue the run held in the store")
+                   help=f"run store: an Optuna storage (a SQLite file, or an Optuna storage URL) that "
+                        f"optuna-dashboard opens (default: REPORT/store.sqlite, else ./{DEFAULT_STORE})")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the run held in the store (more --generations or --runs extend it)")
     p.add_argument("--max-ms", type=float, default=None,
                    help="choose the best candidate whose frame time (re-timed here) is at most this")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -53,6 +68,12 @@ def _store_path(args: argparse.Namespace) -> str:
     if args.report:
         return os.path.join(args.report, "store.sqlite")
     return DEFAULT_STORE
+
+
+def rejected_path(out: str) -> str:
+    """Where a candidate that did not beat its base is written: beside --out, never over it."""
+    root, ext = os.path.splitext(out)
+    return f"{root}.rejected{ext or '.yaml'}"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -68,27 +89,34 @@ def run(args: argparse.Namespace) -> int:
     from uav_depth.core import __version__
     from uav_depth.cli.main import EXIT_ERROR, EXIT_INTERRUPTED
     from uav_depth.core.errors import ConfigError
-    from uav_depth.core.params import DEFAULT_PARAMS, load_params, save_params
+    from uav_depth.core.params import DEFAULT_PARAMS, load_params, params_from_dict, save_params
 
     from uav_depth.tuning.executor import make_executor
     from uav_depth.tuning.frames import load_split
-    from uav_depth.tuning.objective import FITNESS
+    from uav_depth.tuning.objective import FITNESS, FLOWN_FITNESS, PAPER_FITNESS
+    from uav_depth.tuning.optimizers import make_space
     from uav_depth.tuning.report import MANUAL_BASELINE, comparison, sources_text, write_report
     from uav_depth.tuning.space import describe_space, parse_keys
     from uav_depth.tuning.store import RunStore
-    from uav_depth.tuning.study import (Study, StudyConfig, TuneInterrupted, choose_under_budget, full_scores, result_summary,
-                         search_front)
+    from uav_depth.tuning.study import (Study, StudyConfig, TuneInterrupted, choose_under_budget, full_scores,
+                                        result_summary, search_front, select, top_candidates)
 
     if args.max_ms is not None and not args.max_ms > 0:
         raise ConfigError("--max-ms", "must be greater than 0", args.max_ms)
-    keys = parse_keys(args.keys, speed=args.max_ms is not None)
-    config = StudyConfig(metric=args.metric, optimizer=args.optimizer, population=args.population,
+    if args.timeout is not None and not args.timeout > 0:
+        raise ConfigError("--timeout", "must be greater than 0 seconds", args.timeout)
+    metric = args.metric or ("mse" if args.optimizer == "ga-paper" else "flown")
+    keys = parse_keys(args.keys, speed=args.max_ms is not None, flown=metric in FLOWN_FITNESS)
+    config = StudyConfig(metric=metric, optimizer=args.optimizer, population=args.population,
                          generations=args.generations, runs=args.runs, seed=args.seed, keys=keys)
-    fitness = FITNESS[args.metric]
+    fitness = FITNESS[metric]
+    # Reports: the paper's fitnesses are reported in the paper's convention, every other one as benchmarks do.
+    convention = "paper" if metric in PAPER_FITNESS else "bench"
     base = load_params(args.base) if args.base else DEFAULT_PARAMS
     train, holdout = load_split(args.logdir, args.holdout, fitness.needs)
     framesets = {"train": train, "holdout": holdout}
-    store = RunStore(_store_path(args))
+    tuned_keys = [d["key"] for d in describe_space(make_space(args.optimizer, keys))["dims"]]
+    store = RunStore(_store_path(args), "minimize" if fitness.direction < 0 else "maximize", tuned_keys)
 
     # Signal handlers only set the event; the study stops at the next result and
     # keeps every finished evaluation. A second Ctrl-C interrupts at once.
@@ -103,32 +131,37 @@ def run(args: argparse.Namespace) -> int:
     best = {"u": -math.inf}
     try:
         with tqdm(total=total, unit="cand", disable=True if args.no_progress else None, dynamic_ncols=True,
-                  desc=f"tune {args.metric}") as bar:
+                  desc=f"tune {metric}") as bar:
             def progress(n: int, value: float) -> None:
                 bar.update(n)
                 if not math.isnan(value) and fitness.utility(value) > best["u"]:
                     best["u"] = fitness.utility(value)
-                    bar.set_postfix_str(f"best {args.metric} {value:.4g}")
+                    bar.set_postfix_str(f"best {metric} {value:.4g}")
 
-            executor = make_executor(framesets, args.metric, args.workers, args.ray_address)
+            executor = make_executor(framesets, metric, args.workers, args.ray_address)
             try:
-                study = Study(config, train, executor, store, base, progress=progress, stop=stop)
+                study = Study(config, train, executor, store, base, progress=progress, stop=stop,
+                              timeout_s=args.timeout)
                 study.open(args.resume)
                 result = study.run()
                 bar.close()
-                tuned = result.best_params()
-                chosen, chosen_value, budget = tuned, result.best.best_value, None
-                front = search_front(store, args.metric)
+                result.best_params()        # raises when every candidate failed
+                budget = None
                 if args.max_ms is not None:
-                    choice = choose_under_budget(store, args.metric, train, args.max_ms)
+                    choice = choose_under_budget(store, metric, train, args.max_ms)
                     budget = {"max_ms": args.max_ms, "front": choice.front,
                               "chosen": None if choice.params is None else
                               {"value": choice.value, "ms": choice.ms, "params": choice.params.to_dict()},
                               "reason": choice.reason}
-                    if choice.params is not None:
-                        chosen, chosen_value = choice.params, choice.value
+                    candidates = [] if choice.params is None else [(choice.params.to_dict(), choice.value)]
+                else:
+                    candidates = top_candidates(store, metric)
+                selection = select(executor, metric, base, result.baseline.value, candidates, bool(len(holdout)))
+                chosen = params_from_dict(selection.chosen["params"])
+                chosen_value = selection.chosen["train"]
+                front = search_front(store, metric)
                 names = [n for n in ("train", "holdout") if len(framesets[n])]
-                scores = full_scores(executor, [base, chosen], names)
+                scores = full_scores(executor, [base, chosen], names, convention)
             finally:
                 executor.close()
     except TuneInterrupted as exc:
@@ -140,48 +173,65 @@ def run(args: argparse.Namespace) -> int:
 
     cmp = comparison({n: scores[(0, n)] for n in names}, {n: scores[(1, n)] for n in names})
     summary = result_summary(result)
-    summary.update(comparison=cmp, budget=budget or {"max_ms": None, "front": front},
-                   chosen={"value": chosen_value, "params": chosen.to_dict()},
+    summary.update(comparison=cmp, convention=convention, budget=budget or {"max_ms": None, "front": front},
+                   chosen={"value": chosen_value, "holdout_value": selection.chosen["holdout"],
+                           "params": chosen.to_dict()},
+                   selection={"on": selection.on, "winner": selection.winner, "beats_base": selection.beats_base,
+                              "candidates": selection.rows},
                    frames={n: framesets[n].keys for n in names}, store=store.path,
                    references={n: framesets[n].reference_sources() for n in names},
                    base=os.path.abspath(args.base) if args.base else MANUAL_BASELINE,
                    evaluations_per_s=result.evaluated / result.wall_s if result.wall_s > 0 else None)
-    held = cmp.get("holdout", {}).get("metrics", {}).get(args.metric, {})
-    print(f"{args.optimizer} on {len(train)} train frame(s): {args.metric} base {result.baseline.value:.4g} -> "
+    held_base, held_tuned = selection.base["holdout"], selection.chosen["holdout"]
+    print(f"{args.optimizer} on {len(train)} train frame(s): {metric} base {result.baseline.value:.4g} -> "
           f"tuned {chosen_value:.4g}"
-          + (f"; held-out ({len(holdout)}): {held['base']:.4g} -> {held['tuned']:.4g}" if held else "")
-          + f"  [{result.evaluated} evaluated, {result.cached} cached, {result.wall_s:.0f} s]")
+          + (f"; held-out ({len(holdout)}): {held_base:.4g} -> {held_tuned:.4g}" if len(holdout) else "")
+          + f"  [{result.evaluated} evaluated, {result.cached} cached, {result.wall_s:.0f} s"
+          + (", stopped by --timeout" if result.timed_out else "") + "]")
     if "reference" in fitness.needs:
         print("measured against: " + "; ".join(f"{name}: {sources_text(sources)}"
                                                for name, sources in summary["references"].items() if sources))
-    if budget and budget["reason"]:
-        print(f"uav-depth tune: error: --max-ms: {budget['reason']}", file=sys.stderr)
-    elif fitness.utility(chosen_value) < fitness.utility(result.baseline.value):
-        print(f"uav-depth tune: warning: the tuned parameters score worse than the base on the training frames "
-              f"({args.metric} {chosen_value:.4g} vs {result.baseline.value:.4g}); a larger budget or another "
-              f"--optimizer may help", file=sys.stderr)
-    if args.out and not (budget and budget["reason"]):
+    blocked = f"--max-ms: {budget['reason']}" if budget and budget["reason"] else None
+    rejected = None
+    if blocked is None and not selection.beats_base:
+        where = f"the {len(holdout)} held-out frame(s)" if selection.on == "holdout" else \
+            "the training frames (no held-out frame)"
+        rejected = (f"the tuned parameters do not beat the base on {where} "
+                    f"({metric} {selection.chosen[selection.on]:.4g} vs base {selection.base[selection.on]:.4g})")
+    status = EXIT_ERROR if blocked or (rejected and args.out and not args.force) else 0
+    if args.out and blocked is None:
         provenance = {
             "tool": "uav-depth tune", "version": __version__, "opencv": cv2.__version__,
             "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-            "metric": args.metric, "fitness": chosen_value, "baseline_fitness": result.baseline.value,
-            "holdout_fitness": held.get("tuned"), "data": os.path.abspath(args.logdir),
-            "frames": len(train), "frames_digest": study.digest, "holdout": args.holdout,
+            "metric": metric, "convention": convention, "fitness": chosen_value,
+            "baseline_fitness": result.baseline.value, "holdout_fitness": held_tuned,
+            "holdout_baseline_fitness": held_base, "chosen_on": selection.on,
+            "data": os.path.abspath(args.logdir), "frames": len(train), "frames_digest": study.digest,
+            "holdout": args.holdout, "holdout_frames": len(holdout),
             "seed": args.seed, "optimizer": args.optimizer, "population": args.population,
             "generations": args.generations, "runs": args.runs, "best_run": result.best.run,
-            "max_ms": args.max_ms, "store": os.path.abspath(store.path),
+            "max_ms": args.max_ms, "store": os.path.abspath(store.path), "forced": bool(rejected),
             "references": summary["references"]["train"] if "reference" in fitness.needs else None}
-        save_params(chosen, args.out, provenance)
-        print(f"wrote {args.out}")
+        target = rejected_path(args.out) if status else args.out
+        save_params(chosen, target, provenance)
+        print(f"wrote {target}" + (f" (--force: {rejected})" if rejected and not status else ""))
+    if blocked:
+        print(f"uav-depth tune: error: {blocked}", file=sys.stderr)
+    elif status:
+        print(f"uav-depth tune: error: not written: {rejected}; the candidate is in {rejected_path(args.out)}; "
+              "--force writes it anyway", file=sys.stderr)
+    elif rejected and not args.out:
+        print(f"uav-depth tune: warning: {rejected}", file=sys.stderr)
     if args.report:
-        resolved = {"logdir": os.path.abspath(args.logdir), "holdout": args.holdout, "metric": args.metric,
-                    "optimizer": args.optimizer, "population": args.population, "generations": args.generations,
-                    "runs": args.runs, "seed": args.seed, "workers": executor.workers, "executor": executor.kind,
-                    "ray_address": args.ray_address, "max_ms": args.max_ms, "store": store.path,
+        resolved = {"logdir": os.path.abspath(args.logdir), "holdout": args.holdout, "metric": metric,
+                    "convention": convention, "optimizer": args.optimizer, "population": args.population,
+                    "generations": args.generations, "runs": args.runs, "seed": args.seed,
+                    "workers": executor.workers, "executor": executor.kind, "ray_address": args.ray_address,
+                    "max_ms": args.max_ms, "timeout_s": args.timeout, "store": store.path,
                     "space": describe_space(study.space), "base": base.to_dict(), "out": args.out,
                     "opencv": cv2.__version__, "version": __version__}
         points = [(ev.ms, ev.value) for _, p, ev in store.evaluations() if ev.ok and math.isfinite(ev.ms)]
         write_report(args.report, summary, resolved, [framesets[n] for n in names], base, chosen, points)
         print(f"wrote report {args.report}")
     store.close()
-    return EXIT_ERROR if budget and budget["reason"] else 0
+    return status

@@ -27,10 +27,15 @@ def test_synth_then_evaluate_json(tmp_path):
     cli("synth", str(tmp_path / "s"), "--frames", "2", "--seed", "3", "--width", "320", "--height", "240",
         "--focal-px", "200")
     doc = json.loads(cli("evaluate", str(tmp_path / "s"), "--json").stdout)
-    assert [f["id"] for f in doc["frames"]] == ["s/000000", "s/000001"]
-    for key in ("mse", "psnr", "ssim", "bad1", "bad2", "valid", "ms"):
+    assert [f["id"] for f in doc["frames"]] == ["s/000000", "s/000001"] and doc["convention"] == "bench"
+    for key in ("mae", "rmse", "bad1", "bad2", "bad4", "psnr", "density", "branch_err_pct", "ms"):
         assert isinstance(doc["mean"][key], float)
-    assert 0.3 < doc["mean"]["valid"] <= 1 and 0 < doc["mean"]["ssim"] <= 1 and doc["mean"]["mse"] > 0
+    assert 0.3 < doc["mean"]["density"] <= 1 and doc["mean"]["bad1"] >= doc["mean"]["bad2"] >= doc["mean"]["bad4"]
+    paper = json.loads(cli("evaluate", str(tmp_path / "s"), "--json", "--convention", "paper").stdout)
+    for key in ("mse", "psnr", "ssim", "bad1", "bad2", "valid", "ms"):
+        assert isinstance(paper["mean"][key], float)
+    assert 0.3 < paper["mean"]["valid"] <= 1 and 0 < paper["mean"]["ssim"] <= 1 and paper["mean"]["mse"] > 0
+    assert paper["convention"] == "paper"
 
 
 def test_disparity_command_writes_outputs(tmp_path):
@@ -110,10 +115,13 @@ def test_evaluate_scores_inside_the_params_region_and_names_its_references(tmp_p
     region = json.loads(cli("evaluate", str(tmp_path / "s"), "--json", "--params", str(params)).stdout)
     assert region["scored"] == "compute.roi [0.25, 0.25, 0.75, 0.75]"
     # outside the region the pipeline answers nothing by design: that must not count as missing pixels
-    assert region["mean"]["valid"] > 0.9
+    assert region["mean"]["density"] > 0.5
+    paper = json.loads(cli("evaluate", str(tmp_path / "s"), "--json", "--params", str(params),
+                           "--convention", "paper").stdout)
+    assert paper["mean"]["valid"] > 0.9
     assert region["references"]["by_kind"] == {"synthetic": 2}
     for json_file in (tmp_path / "s" / "frames").glob("*_ref.json"):
         json_file.unlink()
     text = cli("evaluate", str(tmp_path / "s")).stdout
     # frames without provenance are one line, not one per frame
-    assert "scored: whole frame; measured against: 2 x unknown (no readable provenance recorded)\n" in text
+    assert "scored: whole frame, bench convention; measured against: 2 x unknown (no readable provenance recorded)\n" in text

@@ -90,7 +90,9 @@ def write_config(path, port: int, branch_m: float = 1.5):
            "source": {"kind": "synthetic", "fps": 5,
                       "scene": {"width": 480, "height": 270, "focal_px": 375.0, "baseline_m": 0.063,
                                 "branch_distance_m": branch_m, "n_branches": 0, "seed": 5}},
-           "ranging": {"max_age_ms": 499, "max_distance_m": 6.0},
+           # min_quality 15: this plain test scene scores 20-30 at 1.5 m; the test is about when
+           # the daemon may send, not about the ranging's quality gate (tests/daemon has that).
+           "ranging": {"max_age_ms": 499, "max_distance_m": 6.0, "min_quality": 15},
            "mavlink": {"url": f"udpin:127.0.0.1:{port}", "rate_hz": 10, "component_id": 191},
            "service": {"first_frame_timeout_s": 60}}
     path.write_text(yaml.safe_dump(cfg))

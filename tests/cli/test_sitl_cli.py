@@ -32,7 +32,7 @@ def write_config(path, **source):
                       "scene": {"width": 480, "height": 270, "focal_px": 375.0, "branch_distance_m": 1.5,
                                 "n_branches": 0, "seed": 4}, **source},
            # 499 ms (the most allowed): a frame can take 0.5 s on two loaded cores.
-           "ranging": {"max_age_ms": 499},
+           "ranging": {"max_age_ms": 499, "min_quality": 15},      # a plain scene: see test_sitl_blind
            "mavlink": {"url": "udpout:127.0.0.1:14999"}}
     path.write_text(yaml.safe_dump(cfg))
     return path

@@ -18,7 +18,7 @@ import yaml
 from uav_depth.core.errors import ConfigError
 from uav_depth.core.params import DEFAULT_PARAMS, save_params
 from uav_depth.daemon.config import run_config_from_dict
-from uav_depth.daemon.liveview import LiveView, LiveViewConfig, colourise, render, Offer
+from uav_depth.daemon.liveview import LiveView, LiveViewConfig, Offer, colourise, render, wire_fields
 from uav_depth.daemon.ranging import Estimate, Measurement, RangeLimits
 
 from mavlink_peer import free_port
@@ -84,7 +84,17 @@ def test_state_carries_the_frame_and_the_wire():
     clock.t = 0.25
     st = view.state()
     assert st["frame"]["distance_m"] == 1.5 and st["frame"]["index"] == 7 and st["frame"]["age_ms"] == 250.0
-    assert st["wire"] == {"sent": False}
+    assert st["wire"] == {"sent": False, "condition": "nothing yet", "valid": False}
+
+
+def test_wire_fields_follow_the_send_clock_report():
+    from uav_depth.daemon.mavlink_out import distance_report
+
+    est = _estimate(t_capture=10.0)
+    sent = wire_fields(distance_report(est, est.limits, 10.1, 0.5, 0.0))
+    assert sent["sent"] and sent["valid"] and sent["current_distance"] == 150 and sent["condition"] == "measuring"
+    stale = wire_fields(distance_report(est, est.limits, 12.0, 0.5, 0.0))
+    assert not stale["sent"] and not stale["valid"] and "current_distance" not in stale
 
 
 def test_picture_draws_region_box_and_colour_bar():

@@ -178,7 +178,7 @@ def test_static_branch_rate_distance_fields_notify_shutdown_and_logs(tmp_path, r
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout)
-    assert len(doc["frames"]) >= 2 and 0 < doc["mean"]["valid"] <= 1
+    assert len(doc["frames"]) >= 2 and 0 < doc["mean"]["density"] <= 1
 
 
 def test_moving_branch_is_followed(tmp_path, rx, params_file):

@@ -234,7 +234,7 @@ def test_cli_import_flags_then_imports_then_evaluates(session, tmp_path):
     show = json.loads(cli("reference", "show", path, "--json").stdout)
     assert show["by_kind"] == {"import": 3} and show["sources"][0]["scale"] == 4.0
     ev = json.loads(cli("evaluate", path, "--json").stdout)
-    assert len(ev["frames"]) == 3 and ev["mean"]["valid"] > 0.3
+    assert len(ev["frames"]) == 3 and ev["mean"]["density"] > 0.3 and ev["convention"] == "bench"
 
 
 def test_show_names_device_references_as_lower_quality(session, tmp_path):

@@ -100,15 +100,33 @@ def test_every_fitness_scores_the_baseline(tiny_frames, metric):
     ev = evaluate(TINY_BASE, tiny_frames, FITNESS[metric])
     assert ev.status == "ok" and len(ev.per_frame) == 2 and math.isfinite(ev.value)
     assert ev.value == pytest.approx(np.mean(ev.per_frame))
-    full = evaluate(TINY_BASE, tiny_frames, FITNESS[metric], full=True)
+    full = evaluate(TINY_BASE, tiny_frames, FITNESS[metric], full=True, convention="paper")
     assert full.value == ev.value and full.metrics[metric] == pytest.approx(ev.value)
     assert {"mse", "psnr", "ssim", "bad2", "valid", "branch"} <= set(full.metrics)
     assert [f["id"] for f in full.frame_metrics] == ["tiny/000000", "tiny/000001"]
+    bench = evaluate(TINY_BASE, tiny_frames, FITNESS[metric], full=True, convention="bench")
+    assert {"mae", "rmse", "bad1", "bad2", "bad4", "psnr", "density", "branch", "truth_m", "branch_m"} == set(bench.metrics)
+
+
+@pytest.mark.parametrize("metric", ["flown", "flown-bad2"])
+def test_flown_fitness_scores_what_ranging_consumes_and_ignores_wls_smoothing(tiny_frames, metric):
+    ev = evaluate(TINY_BASE, tiny_frames, FITNESS[metric])
+    assert ev.status == "ok" and math.isfinite(ev.value) and ev.value > 0
+    # lambda and sigma change the WLS map (the paper's fitness) but never what the ranging uses
+    smooth = TINY_BASE.replace(**{"wls.lambda": 90000.0, "wls.sigma_color": 5.0})
+    assert evaluate(smooth, tiny_frames, FITNESS[metric]).per_frame == ev.per_frame
+    assert evaluate(smooth, tiny_frames, FITNESS["mse"]).value != evaluate(TINY_BASE, tiny_frames,
+                                                                            FITNESS["mse"]).value
+    # the matcher's own parameters do change it
+    other = TINY_BASE.replace(**{"sgbm.uniqueness_ratio": 40, "sgbm.p2": 9000})
+    assert evaluate(other, tiny_frames, FITNESS[metric]).per_frame != ev.per_frame
 
 
 def test_branch_fitness_is_the_daemons_ranging_error(tiny_frames):
     ev = evaluate(TINY_BASE, tiny_frames, FITNESS["branch"])
-    assert 0 <= ev.value < 10          # the baseline ranges tiny synthetic branches within a few %
+    # the baseline ranges tiny synthetic branches within a few %, or reports no measurement (the ranging's
+    # quality gate), which costs the full 100 %
+    assert min(ev.per_frame) < 10 and all(v < 10 or v == 100.0 for v in ev.per_frame)
     # a matcher that sees nothing near cannot range the branch: the miss costs 100 %
     blind = TINY_BASE.replace(**{"sgbm.num_disparities": 16, "sgbm.min_disparity": 0})
     assert evaluate(blind, tiny_frames, FITNESS["branch"]).value > ev.value

@@ -3,15 +3,17 @@
 import json
 import os
 import signal
-import sqlite3
 import subprocess
 import sys
 import time
 
+import optuna
 import pytest
+import yaml
 
 from uav_depth.cli.main import EXIT_CONFIG
 from uav_depth.core.params import load_params, read_provenance
+from uav_depth.tuning.store import STUDY_NAME, RunStore, storage_url
 
 
 def cli(*args, check=True):
@@ -22,9 +24,11 @@ def cli(*args, check=True):
     return proc
 
 
-def _args(root, *extra):
-    return ["tune", root / "s", "--base", root / "base.yaml", "--optimizer", "ga", "--population", "8",
-            "--generations", "12", "--seed", "4", "--workers", "2", "--no-progress", *extra]
+def _args(root, *extra, generations=12):
+    """The paper's metric on all four frames (no held-out frame: the gate compares on the training frames)."""
+    return ["tune", root / "s", "--base", root / "base.yaml", "--optimizer", "ga", "--metric", "mse",
+            "--holdout", "none", "--population", "8", "--generations", str(generations), "--seed", "4",
+            "--workers", "2", "--no-progress", *extra]
 
 
 @pytest.fixture(scope="module")
@@ -36,11 +40,18 @@ def reference_run(tiny_session, tmp_path_factory):
 
 
 def _count(store):
-    try:
-        with sqlite3.connect(store) as db:
-            return db.execute("SELECT COUNT(*) FROM evaluations").fetchone()[0]
-    except sqlite3.Error:
+    """Trials in the store, read through Optuna's own API (0 before the run created it)."""
+    if not store.exists():
         return 0
+    try:
+        return len(optuna.load_study(study_name=STUDY_NAME, storage=storage_url(store)).trials)
+    except Exception:          # the run is still creating the schema or the study
+        return 0
+
+
+def _trials(store):
+    with RunStore(store) as s:
+        return s.trials()
 
 
 def _start_and_wait(args, store, at_least):
@@ -48,7 +59,7 @@ def _start_and_wait(args, store, at_least):
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
     deadline = time.monotonic() + 120
     while _count(store) < at_least and proc.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.005)
+        time.sleep(0.05)
     assert proc.poll() is None, "the run ended before it could be interrupted"
     return proc
 
@@ -72,6 +83,7 @@ def test_report_has_summary_table_plots_and_images(reference_run, tiny_session):
         summary["comparison"]["train"]["metrics"]["mse"]["base"]
     table = (rep / "table.md").read_text()
     assert "| train (4) | mse |" in table and "-42.86%" in table and "+28.52%" in table
+    assert "the paper's convention" in table and summary["convention"] == "paper"
     assert f"vs the base it started from: {tiny_session / 'base.yaml'}." in table    # not "manual": --base given
     assert "Reference disparity of the train frames: 4 x synthetic (exact ray-cast disparity)." in table
     assert summary["references"] == {"train": {"synthetic (exact ray-cast disparity)": 4}}
@@ -92,9 +104,7 @@ def test_resume_after_kill_ends_with_the_uninterrupted_result(reference_run, tin
     assert "evaluated" in resumed.stdout
     assert load_params(out) == load_params(reference_run / "p.yaml")
     assert read_provenance(out)["fitness"] == read_provenance(reference_run / "p.yaml")["fitness"]
-    with sqlite3.connect(store) as a, sqlite3.connect(reference_run / "store.sqlite") as b:
-        q = "SELECT run, generation, idx, key, utility FROM trials ORDER BY run, generation, idx"
-        assert a.execute(q).fetchall() == b.execute(q).fetchall()
+    assert _trials(store) == _trials(reference_run / "store.sqlite")
 
 
 def test_ctrl_c_keeps_finished_work_and_resume_finishes_it(reference_run, tiny_session, tmp_path):
@@ -133,8 +143,8 @@ def test_resume_of_a_finished_run_evaluates_nothing(reference_run, tiny_session,
 def test_holdout_and_max_ms(tiny_session, tmp_path):
     proc = cli("tune", tiny_session / "s", "--base", tiny_session / "base.yaml", "--optimizer", "random",
                "--population", "5", "--generations", "2", "--workers", "1", "--holdout", "0.5", "--max-ms", "10000",
-               "--report", tmp_path / "rep", "--out", tmp_path / "p.yaml", "--no-progress")
-    assert "held-out (2)" in proc.stdout
+               "--report", tmp_path / "rep", "--out", tmp_path / "p.yaml", "--no-progress", "--force")
+    assert "held-out (2)" in proc.stdout or "not written" in proc.stderr
     summary = json.loads((tmp_path / "rep" / "summary.json").read_text())
     assert summary["frames"]["holdout"] == ["s/000002", "s/000003"]
     assert summary["budget"]["chosen"]["ms"] <= 10000 and summary["budget"]["front"]
@@ -151,8 +161,105 @@ def test_holdout_and_max_ms(tiny_session, tmp_path):
     (["--keys", "sgbm.p9"], "--keys must name parameter-file keys"),
     (["--population", "1"], "--population must be an integer of at least 2"),
     (["--max-ms", "0"], "--max-ms must be greater than 0"),
-], ids=["holdout-fraction", "holdout-name", "keys", "population", "max-ms"])
+    (["--keys", "sgbm.p1,wls.lambda"], "--keys must change what flies"),
+    (["--timeout", "0"], "--timeout must be greater than 0 seconds"),
+], ids=["holdout-fraction", "holdout-name", "keys", "population", "max-ms", "wls-not-flown", "timeout"])
 def test_bad_arguments_are_one_line_config_errors(tiny_session, tmp_path, extra, match):
     proc = cli("tune", tiny_session / "s", "--store", tmp_path / "x.sqlite", "--no-progress", *extra, check=False)
     assert proc.returncode == EXIT_CONFIG and match in proc.stderr
     assert proc.stderr.strip().count("\n") == 0
+
+
+def test_default_tune_flies_chooses_on_held_out_frames_and_reports_benchmark_metrics(tiny_session, tmp_path):
+    proc = cli("tune", tiny_session / "s", "--base", tiny_session / "base.yaml", "--population", "6",
+               "--generations", "3", "--workers", "1", "--report", tmp_path / "rep", "--out", tmp_path / "p.yaml",
+               "--no-progress", "--force")
+    summary = json.loads((tmp_path / "rep" / "summary.json").read_text())
+    assert summary["config"]["metric"] == "flown" and summary["config"]["optimizer"] == "tpe"
+    assert summary["convention"] == "bench"
+    assert summary["frames"]["holdout"] == ["s/000002", "s/000003"]   # auto: ceil(30 %) of a single session
+    assert summary["selection"]["on"] == "holdout" and len(summary["selection"]["candidates"]) >= 2
+    dims = yaml.safe_load((tmp_path / "rep" / "config.yaml").read_text())["space"]["dims"]
+    assert dims and not [d["key"] for d in dims if d["key"].startswith("wls.")]   # WLS never reaches what flies
+    held = summary["comparison"]["holdout"]["metrics"]
+    for key in ("mae", "bad2", "bad4", "density", "psnr"):
+        assert key in held, key
+    table = (tmp_path / "rep" / "table.md").read_text()
+    assert "benchmark convention" in table and "-42.86%" not in table
+    assert "wrote " in proc.stdout
+
+
+def test_tune_refuses_to_write_a_worse_file_and_keeps_the_candidate_beside_it(tiny_session, tmp_path):
+    out = tmp_path / "params.yaml"
+    good = tiny_session / "base.yaml"
+    out.write_bytes(good.read_bytes())
+    before = out.read_bytes()
+    # one random candidate against a base that is already good: it cannot beat it on the held-out frame
+    args = ["tune", tiny_session / "s", "--base", good, "--optimizer", "random", "--population", "2",
+            "--generations", "1", "--seed", "2", "--workers", "1", "--keys", "sgbm.uniqueness_ratio",
+            "--no-progress", "--out", out]
+    proc = cli(*args, "--store", tmp_path / "a.sqlite", check=False)
+    assert proc.returncode == 1, proc.stdout
+    assert "not written: the tuned parameters do not beat the base on the 2 held-out frame(s)" in proc.stderr
+    assert proc.stderr.strip().count("\n") == 0
+    assert out.read_bytes() == before
+    rejected = tmp_path / "params.rejected.yaml"
+    prov = read_provenance(rejected)
+    assert prov["holdout_fitness"] >= prov["holdout_baseline_fitness"] and prov["chosen_on"] == "holdout"
+    assert load_params(rejected) != load_params(good)      # the search's candidate, not the base again
+    forced = cli(*args, "--store", tmp_path / "b.sqlite", "--force")
+    assert "--force" in forced.stdout and read_provenance(out)["forced"] is True
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="giving a file to another owner needs root")
+def test_tune_keeps_owner_and_mode_of_an_existing_out_file(tiny_session, tmp_path):
+    import pwd
+
+    nobody = pwd.getpwnam("nobody")
+    out = tmp_path / "params.yaml"
+    out.write_bytes((tiny_session / "base.yaml").read_bytes())
+    os.chown(out, nobody.pw_uid, nobody.pw_gid)
+    os.chmod(out, 0o640)
+    cli("tune", tiny_session / "s", "--base", tiny_session / "base.yaml", "--optimizer", "random",
+        "--population", "2", "--generations", "1", "--workers", "1", "--no-progress", "--force",
+        "--store", tmp_path / "s.sqlite", "--out", out)
+    st = out.stat()
+    assert (st.st_uid, st.st_gid, st.st_mode & 0o7777) == (nobody.pw_uid, nobody.pw_gid, 0o640)
+    assert read_provenance(out)["tool"] == "uav-depth tune"
+
+
+def test_the_store_is_an_optuna_study_the_dashboard_can_open(reference_run):
+    url = storage_url(reference_run / "store.sqlite")
+    summaries = optuna.get_all_study_summaries(storage=url)
+    assert [s.study_name for s in summaries] == [STUDY_NAME] and summaries[0].n_trials > 10
+    study = optuna.load_study(study_name=STUDY_NAME, storage=url)
+    assert study.direction == optuna.study.StudyDirection.MINIMIZE            # mse
+    done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    prov = read_provenance(reference_run / "p.yaml")
+    assert min(t.value for t in done) == prov["fitness"]                      # bit for bit
+    assert "sgbm.p1" in done[0].params and done[0].user_attrs["params"]["sgbm"]["p1"] == done[0].params["sgbm.p1"]
+    assert study.user_attrs["config"]["seed"] == 4
+
+
+def test_resume_with_more_generations_extends_the_study_to_the_longer_runs_result(reference_run, tiny_session,
+                                                                                 tmp_path):
+    import shutil
+
+    shorter = tmp_path / "short.sqlite"
+    cli(*_args(tiny_session, "--store", shorter, generations=6))
+    n_short = _count(shorter)
+    shutil.copy(shorter, tmp_path / "copy.sqlite")
+    out = cli(*_args(tiny_session, "--store", shorter, "--resume", "--out", tmp_path / "p.yaml")).stdout
+    assert "[0 evaluated" not in out and _count(shorter) > n_short
+    assert _trials(shorter) == _trials(reference_run / "store.sqlite")        # 6 + 6 = the 12-generation run
+    assert load_params(tmp_path / "p.yaml") == load_params(reference_run / "p.yaml")
+
+
+def test_timeout_stops_between_generations_and_resume_finishes_the_same(reference_run, tiny_session, tmp_path):
+    store = tmp_path / "t.sqlite"
+    first = cli(*_args(tiny_session, "--store", store, "--timeout", "0.5"))
+    assert "stopped by --timeout" in first.stdout
+    assert len(_trials(store)) < len(_trials(reference_run / "store.sqlite"))
+    cli(*_args(tiny_session, "--store", store, "--resume", "--out", tmp_path / "p.yaml"))
+    assert _trials(store) == _trials(reference_run / "store.sqlite")
+    assert load_params(tmp_path / "p.yaml") == load_params(reference_run / "p.yaml")

@@ -18,6 +18,8 @@ multiple of ``pad_multiple``) by ``letterbox`` (scale to fit keeping the aspect
 ratio, replicate-pad right/bottom), ``stretch`` or ``pad`` (no scaling). The
 output is cropped to the image area, resized back to the frame and multiplied by
 frame width / scaled width: disparity is in px of the frame's left image.
+
+Longer than 400 lines because the ONNX model checks, letterboxing and output decoding are one contract with the model.
 """
 
 from __future__ import annotations
