@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import threading
 import time
 from dataclasses import dataclass
@@ -41,6 +40,7 @@ from uav_depth.core.disparity import DisparityPipeline
 from uav_depth.core.keys import Key
 from uav_depth.core.params import StereoParams
 from uav_depth.daemon.mavlink_enums import cm_down, wire_range_cm
+from uav_depth.daemon.worker import NicedWorker
 
 log = logging.getLogger("uav_depth.obstacles")
 
@@ -183,12 +183,15 @@ class ObstacleReport:
     frame: int = MAV_FRAME_BODY_FRD
 
 
-class ObstacleSender:
+class ObstacleSender(NicedWorker):
     """The pass thread. ``offer`` (stereo loop: references, one assignment), ``start``, ``join``.
 
     ``send``: sends one :class:`ObstacleReport` (the link); ``params``: the current
     StereoParams; ``limits_cm``: the (min, max) cm of DISTANCE_SENSOR.
     """
+
+    NAME = "obstacles"
+    NICENESS = 10
 
     def __init__(self, config: ObstacleConfig, field: Field, fb_px_m: float, max_age_s: float,
                  params: Callable[[], StereoParams], limits_cm: Callable[[], tuple[int, int]],
@@ -198,7 +201,6 @@ class ObstacleSender:
         self._pair: tuple[np.ndarray, np.ndarray, float] | None = None
         self._new = threading.Event()
         self._pipe: tuple[StereoParams, DisparityPipeline] | None = None
-        self._thread: threading.Thread | None = None
         self.sent = 0
         self.withheld = 0
         self.last: ObstacleReport | None = None
@@ -221,22 +223,8 @@ class ObstacleSender:
         return ObstacleReport(int((t_capture - self.t_start) * 1e6), bins_cm(ranges, confident, lo, hi),
                               max(1, int(round(inc))), inc, self.field.angle_offset_deg, lo, hi)
 
-    def start(self, stop: threading.Event) -> "ObstacleSender":
-        self._thread = threading.Thread(target=self._loop, args=(stop,), name="obstacles", daemon=True)
-        self._thread.start()
-        return self
-
-    def join(self, timeout_s: float) -> bool:
-        if self._thread is None:
-            return True
-        self._thread.join(timeout_s)
-        return not self._thread.is_alive()
 
     def _loop(self, stop: threading.Event) -> None:
-        try:    # Linux nices one thread by its id: the pass yields the CPU to the stereo loop
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
-        except (AttributeError, OSError):
-            log.debug("obstacle pass runs at the daemon's priority")
         period = 1.0 / self.config.rate_hz
         while not stop.is_set():
             t0 = self.clock()

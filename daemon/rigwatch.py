@@ -9,7 +9,6 @@ a second of one core at 640x360, on a thread niced to 19, so the default period 
 from __future__ import annotations
 
 import logging
-import os
 import threading
 from dataclasses import dataclass
 from typing import Callable
@@ -19,6 +18,7 @@ import numpy as np
 from uav_depth.core.errors import FrameError
 from uav_depth.core.keys import Key
 from uav_depth.core.rigcheck import MAX_VERTICAL_PX, RigCheck, check_rig
+from uav_depth.daemon.worker import NicedWorker
 
 log = logging.getLogger("uav_depth.rigcheck")
 
@@ -38,30 +38,22 @@ class RigCheckConfig:
     )
 
 
-class RigWatch:
+class RigWatch(NicedWorker):
     """Checks the newest pair every ``interval_s`` until ``stop`` is set. ``warn``: STATUSTEXT sender."""
+
+    NAME = "rig-check"
+    NICENESS = 19
 
     def __init__(self, config: RigCheckConfig, warn: Callable[[str], object]):
         self.config = config
         self.warn = warn
         self._pair: tuple[np.ndarray, np.ndarray] | None = None
         self.last: RigCheck | None = None
-        self._thread: threading.Thread | None = None
         self._misaligned = False
 
     def offer(self, left: np.ndarray, right: np.ndarray) -> None:
         self._pair = (left, right)
 
-    def start(self, stop: threading.Event) -> "RigWatch":
-        self._thread = threading.Thread(target=self._loop, args=(stop,), name="rig-check", daemon=True)
-        self._thread.start()
-        return self
-
-    def join(self, timeout_s: float) -> bool:
-        if self._thread is None:
-            return True
-        self._thread.join(timeout_s)
-        return not self._thread.is_alive()
 
     def check_now(self) -> RigCheck | None:
         pair = self._pair
@@ -85,10 +77,6 @@ class RigWatch:
         return check
 
     def _loop(self, stop: threading.Event) -> None:
-        try:    # Linux nices one thread by its id: the check yields the CPU to the stereo loop
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)
-        except (AttributeError, OSError):
-            log.debug("rig check runs at the daemon's priority")
         while not stop.wait(self.config.interval_s):
             try:
                 self.check_now()

@@ -30,7 +30,7 @@ UNIT = REPO / "deploy" / "uav-depth.service"
 #: System calls outside the unit's filter that the daemon makes and survives getting EPERM for.
 #: mbind: OpenBLAS asks for a NUMA memory policy on its buffers, a hint whose failure it ignores.
 #: setpriority: the rig check and the OBSTACLE_DISTANCE pass nice their own thread (a hint; on EPERM they run
-#: at the daemon's priority, daemon/rigwatch.py and daemon/obstacles.py catch it).
+#: at the daemon's priority: daemon/worker.py catches it).
 TOLERATED_DENIED = {"mbind", "setpriority"}
 #: /proc files outside the process's own that ProcSubset=pid hides (ENOENT), and why that is fine.
 TOLERATED_PROC = {
