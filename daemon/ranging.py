@@ -54,6 +54,8 @@ CLUSTER_MARGIN_PX = 1.0
 #: whole branch), so even a perfectly tight cluster is only known to about +-0.5 px: a uniform
 #: error of that width has sigma 1/sqrt(12).
 PIXEL_LOCKING_SIGMA_PX = 1.0 / math.sqrt(12.0)
+#: The largest sigma DISTANCE_SENSOR's ``covariance`` (uint8 cm^2, 255 = unknown) can carry: 15.9 cm.
+WIRE_SIGMA_MAX_M = math.sqrt(254.0) / 100.0
 #: Too close by the near pass (:mod:`uav_depth.core.disparity.near`): at least this share of the ROI
 #: matched confidently beyond the main search. Measured with the flight file (docs/ranging.md):
 #: branches at 0.08-0.27 m give 0.21-0.74, frames with nothing nearer than the minimum range at most 0.06.
@@ -92,6 +94,7 @@ class RangingConfig:
     surface_quantile: float = 0.2
     max_jump_rel: float = 0.2
     confirm_frames: int = 2
+    max_sigma_m: float = WIRE_SIGMA_MAX_M
 
     KEYS = (
         Key("roi", "roi", None, "region of interest in the rectified left image, px; null: the central third",
@@ -117,6 +120,9 @@ class RangingConfig:
         Key("max_jump_rel", "float", 0.2, "a change larger than this fraction is held back until confirmed "
             "(single-frame outlier rejection); 0 disables", 0.0, 10.0),
         Key("confirm_frames", "int", 2, "consecutive agreeing frames that confirm a jump", 1, 100),
+        Key("max_sigma_m", "float", WIRE_SIGMA_MAX_M, "a reading less precise (1 sigma, m) is no measurement and "
+            f"DISTANCE_SENSOR's range ends where the sigma floor reaches it; default {WIRE_SIGMA_MAX_M:.4f}, the most "
+            "its covariance can carry (larger: such readings go out with covariance 255, unknown)", 0.001, 100.0),
     )
 
 
@@ -160,6 +166,12 @@ class RangeLimits:
     max_distance_m: float
     hfov_rad: float
     vfov_rad: float
+    precise_max_m: float | None = None    # where the sigma floor reaches ranging.max_sigma_m (None: nowhere)
+
+    @property
+    def stated_max_m(self) -> float:
+        """DISTANCE_SENSOR's range: ``max_distance_m``, or nearer where readings stop being precise."""
+        return self.max_distance_m if self.precise_max_m is None else min(self.max_distance_m, self.precise_max_m)
 
 
 def default_roi(width: int, height: int) -> tuple[int, int, int, int]:
@@ -215,7 +227,13 @@ class Ranger:
                               sg.num_disparities)
         # Farther than max_distance_m (or than the smallest searched disparity) is "no measurement".
         self.d_floor = max(self.fb / config.max_distance_m, sg.min_disparity * self.px, 1.0 / 16.0)
+        # DISTANCE_SENSOR's range ends where sigma_z = z^2 / fb * sigma_d passes max_sigma_m at the floor:
+        # the fine pass's (full resolution) when it runs, the coarse pass's otherwise.
+        fine = params.compute.fine_disparities > 0 and params.compute.scale < 1.0
+        self.sigma_floor_px = PIXEL_LOCKING_SIGMA_PX * (1.0 if fine else self.px)
+        self.d_precise = math.sqrt(self.fb * self.sigma_floor_px / config.max_sigma_m)
         self.limits = RangeLimits(min_distance_m=self.fb / d_max, max_distance_m=self.fb / self.d_floor,
+                                  precise_max_m=self.fb / self.d_precise,
                                   hfov_rad=_fov(roi[0], roi[2], calibration.principal_point[0],
                                                 calibration.focal_px),
                                   vfov_rad=_fov(roi[1], roi[3], calibration.principal_point[1],
@@ -254,6 +272,11 @@ class Ranger:
         m = self._reading(obj, bbox, quality, valid_fraction)
         if result.fine is not None:
             m = self._refine(m, obj, result, disp, ok)
+        # Decided on the reading that would go out (the fine one when it stands): it is the one sent.
+        if m.sigma_m > cfg.max_sigma_m:
+            return replace(m, distance_m=None, sigma_m=None, refined=False,
+                           reason=f"sigma {m.sigma_m:.3f} m above max_sigma_m {cfg.max_sigma_m:.3f} m "
+                                  f"(the object would read {m.distance_m:.3f} m)")
         return m
 
     def _reading(self, obj: "_Object", bbox: tuple[int, int, int, int], quality: int, valid_fraction: float,

@@ -310,6 +310,28 @@ def test_one_definition_of_the_default_roi_and_of_a_significant_object():
     assert RangingConfig().min_object_m2 == SIGNIFICANT_AREA_M2 == truth.SIGNIFICANT_AREA_M2
 
 
+def test_the_range_ends_where_the_sigma_floor_passes_what_the_wire_carries():
+    """By default a reading is never less precise than DISTANCE_SENSOR's covariance can say (15.9 cm)."""
+    from uav_depth.daemon.ranging import PIXEL_LOCKING_SIGMA_PX, WIRE_SIGMA_MAX_M
+
+    fb = 350.0 * 0.063
+    for params, px in ((PARAMS, 1.0), (PARAMS.replace(**{"compute.scale": 0.5}), 2.0)):
+        r = ranger(RangingConfig(max_distance_m=10.0), params=params)
+        z_max = math.sqrt(WIRE_SIGMA_MAX_M * fb / (PIXEL_LOCKING_SIGMA_PX * px))   # 3.49 m, 2.47 m
+        assert r.limits.precise_max_m == pytest.approx(z_max) and r.limits.stated_max_m == pytest.approx(z_max)
+        assert r.limits.max_distance_m == pytest.approx(10.0)       # OBSTACLE_DISTANCE's range stays
+        inside = r.measure(_result(np.full((360, 640), fb / (0.97 * z_max), np.float32)))
+        beyond = r.measure(_result(np.full((360, 640), fb / (1.03 * z_max), np.float32)))
+        assert inside.valid and inside.sigma_m <= WIRE_SIGMA_MAX_M
+        assert not beyond.valid
+    # A spread wider than the floor: the reading's own sigma passes the limit nearer than that.
+    rng = np.random.default_rng(0)
+    d = (fb / 2.0 + rng.normal(0, 2.0, (360, 640))).astype(np.float32)     # 2 m, spread 2 px: sigma ~0.36 m
+    m = ranger(RangingConfig(cluster_depth_m=1.0, surface_quantile=0.5)).measure(_result(d))
+    assert not m.valid and "above max_sigma_m" in m.reason
+    assert ranger(RangingConfig(cluster_depth_m=1.0, surface_quantile=0.5, max_sigma_m=1.0)).measure(_result(d)).valid
+
+
 # -- the fine pass: full-resolution re-match of the ranged object ---------------------------------------------------
 
 HALF_FINE = PARAMS.replace(**{"compute.scale": 0.5, "compute.fine_disparities": 32})
@@ -410,7 +432,8 @@ def test_the_fine_pass_looks_into_columns_the_coarse_pass_could_not_answer():
 
 def test_the_fine_pass_halves_the_error_of_a_hover_at_3_m():
     """640x360 laptop camera (f = 350 px), flight file for it: at 3 m half-scale matching leaves about 3.7
-    matched px of disparity; the coarse pass read this frame 27 cm too far, the fine pass within 3 %."""
+    matched px of disparity; the coarse pass read this frame 27 cm too far, the fine pass within 3 %, and
+    precisely enough for the wire (sigma under 15.9 cm) where the coarse one is not."""
     from uav_depth.core.disparity import flight_pipeline
 
     flight = load_params(FLIGHT_FILE.with_name("params-flight-640x360.yaml"))
@@ -418,11 +441,28 @@ def test_the_fine_pass_halves_the_error_of_a_hover_at_3_m():
     cfg = SceneConfig(width=640, height=360, focal_px=350.0, baseline_m=0.063, branch_distance_m=3.0, seed=1)
     frame = Scene(cfg).render(rng=np.random.default_rng([1, 0]))
     truth = frame.truth(cfg.center_roi).significant_m
-    ranging = RangingConfig(max_distance_m=7.0)
     coarse_params = flight.replace(**{"compute.fine_disparities": 0})
-    coarse = Ranger(ranging, cfg.calibration, cfg.center_roi, coarse_params).measure(
-        flight_pipeline(coarse_params).run(frame.left, frame.right))
-    fine = Ranger(ranging, cfg.calibration, cfg.center_roi, flight).measure(
+    # The coarse reading's sigma (0.28 m) is beyond what the wire carries: compared here with the limit raised.
+    coarse = Ranger(RangingConfig(max_distance_m=7.0, max_sigma_m=1.0), cfg.calibration, cfg.center_roi,
+                    coarse_params).measure(flight_pipeline(coarse_params).run(frame.left, frame.right))
+    fine = Ranger(RangingConfig(max_distance_m=7.0), cfg.calibration, cfg.center_roi, flight).measure(
         flight_pipeline(flight).run(frame.left, frame.right))
     assert coarse.valid and fine.valid and fine.refined and not coarse.refined
     assert abs(fine.distance_m - truth) < 0.03 * truth < abs(coarse.distance_m - truth)
+
+
+def test_with_the_fine_pass_the_precise_range_follows_its_full_resolution_floor():
+    """The fine pass's sigma floor is 1/sqrt(12) input px (half the coarse one at scale 0.5), so the stated
+    range ends sqrt(2) farther; a reading the fine pass does not replace keeps the coarse sigma and is
+    dropped beyond the coarse precise range."""
+    from uav_depth.daemon.ranging import PIXEL_LOCKING_SIGMA_PX, WIRE_SIGMA_MAX_M
+
+    fb = 350.0 * 0.063
+    r = ranger(RangingConfig(max_distance_m=10.0), params=HALF_FINE)
+    assert r.limits.precise_max_m == pytest.approx(math.sqrt(WIRE_SIGMA_MAX_M * fb / PIXEL_LOCKING_SIGMA_PX))
+    z = 3.0                                                  # beyond the coarse 2.47 m, inside the fine 3.49 m
+    d = np.full((360, 640), fb / z, np.float32)
+    coarse_only = r.measure(DisparityResult(d, d, None, fine=lambda box, d0: None))
+    assert not coarse_only.valid and "above max_sigma_m" in coarse_only.reason
+    fine = r.measure(DisparityResult(d, d, None, fine=_fine_answer(fb / z, [])))
+    assert fine.valid and fine.refined and fine.sigma_m <= WIRE_SIGMA_MAX_M
