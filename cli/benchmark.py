@@ -321,19 +321,21 @@ def bench(flight: StereoParams, frames: int = 12, rounds: int = 20, naive_rounds
 
 
 def flight_params(focal_px: float = 700.0, baseline_m: float = 0.063, scale: float = 0.5,
-                  block_size: int = 3) -> StereoParams:
+                  block_size: int = 3, fine_disparities: int = 32) -> StereoParams:
     """The recommended flight settings for a camera (ZED Mini at 1280x720 by default).
 
     Centre third plus the search margin, half resolution, grey, SGBM 3-way, WLS
     at the matched resolution, the disparity range of the 0.3..3 m working
-    distance, P1/P2 by OpenCV's rule for one channel. ``deploy/params-flight.yaml``
+    distance, P1/P2 by OpenCV's rule for one channel, and the ranged object re-matched at full
+    resolution over ``fine_disparities`` (docs/ranging.md). ``deploy/params-flight.yaml``
     is this for the defaults.
     """
     min_d, num_d = disparity_search_range(focal_px, baseline_m, WORKING_NEAR_M, scale=scale)
     return DEFAULT_PARAMS.replace(**{
         "sgbm.mode": "sgbm_3way", "sgbm.min_disparity": min_d, "sgbm.num_disparities": num_d,
         "sgbm.block_size": block_size, "sgbm.p1": 8 * block_size ** 2, "sgbm.p2": 32 * block_size ** 2,
-        "compute.roi": list(FLIGHT_ROI), "compute.scale": scale, "compute.grey": True, "compute.wls_at": "matched"})
+        "compute.roi": list(FLIGHT_ROI), "compute.scale": scale, "compute.grey": True, "compute.wls_at": "matched",
+        "compute.fine_disparities": fine_disparities})
 
 
 def format_report(out: dict[str, Any]) -> str:
