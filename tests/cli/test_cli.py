@@ -47,6 +47,18 @@ def test_disparity_command_writes_outputs(tmp_path):
         assert (tmp_path / f"d{suffix}").stat().st_size > 0
 
 
+def test_images_smaller_than_the_matching_window_give_an_empty_map_not_a_traceback(tmp_path):
+    """Issue 15: 8x8 images to `disparity` raised cv2.error (a traceback, exit 1)."""
+    import cv2
+    import numpy as np
+
+    img = tmp_path / "t8.png"
+    cv2.imwrite(str(img), (np.random.default_rng(0).random((8, 8)) * 255).astype(np.uint8))
+    proc = cli("disparity", str(img), str(img), "--out", str(tmp_path / "d.npy"))
+    assert "Traceback" not in proc.stderr and "0.0% valid" in proc.stdout
+    assert np.isnan(np.load(tmp_path / "d.npy")).all()     # nothing measured: no made-up disparity
+
+
 def test_bad_params_file_is_one_line_and_config_exit(tmp_path):
     bad = tmp_path / "p.yaml"
     bad.write_text("sgbm:\n  num_disparities: 40\n")

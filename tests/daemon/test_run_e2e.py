@@ -1,7 +1,10 @@
 """End to end: the real daemon process (`uav-depth run`) against a real pymavlink endpoint on loopback.
 
 Synthetic scenes with the branch at a known distance; the rate assertion concerns the
-send clock (the stereo stage runs at its own, lower rate).
+send clock (the stereo stage runs at its own, lower rate). The tests hold on a loaded machine
+(issue 15): they wait for a number of readings with a long deadline instead of counting what
+arrives in a fixed window, and the staleness limit and the camera timeout are generous here
+(the rules themselves are tested in test_service.py).
 """
 
 import json
@@ -99,13 +102,25 @@ class Daemon:
             self.proc.wait(5)
 
 
+#: Deadline for what a loaded machine takes its time over (never reached when things work).
+PATIENCE_S = 180
+
+
+def readings(rx, n, proc, since=0.0, what="valid readings"):
+    """Wait (up to PATIENCE_S) for ``n`` valid DISTANCE_SENSOR readings that arrived after ``since``."""
+    wait(lambda: sum(m.signal_quality > 1 for m in rx.of("DISTANCE_SENSOR", since)) >= n, PATIENCE_S, proc,
+         f"{n} {what}")
+    return rx.timed("DISTANCE_SENSOR", since)
+
+
 def base_config(rx, scene, params_file, **extra):
-    # max_age_ms 450 (default 300): other work shares this machine's two cores, and the staleness
-    # rule itself is tested in test_service.py.
+    # max_age_ms 499 (the largest allowed; default 300) and frame_timeout_s 10 (default 2): other work may
+    # share this machine's two cores; the staleness and camera-loss rules are tested in test_service.py.
     cfg = {"source": {"kind": "synthetic", "fps": 10, "scene": scene},
-           "params_file": str(params_file), "ranging": {"max_age_ms": 450},
+           "params_file": str(params_file), "ranging": {"max_age_ms": 499},
            "mavlink": {"url": f"udpout:127.0.0.1:{rx.port}", "rate_hz": RATE_HZ},
-           "service": {"shutdown_timeout_s": SHUTDOWN_S, "status_interval_s": 1.0, "params_poll_s": 0.2}}
+           "service": {"shutdown_timeout_s": SHUTDOWN_S, "status_interval_s": 1.0, "params_poll_s": 0.2,
+                       "frame_timeout_s": 10.0}}
     cfg.update(extra)
     return cfg
 
@@ -130,26 +145,28 @@ def test_static_branch_rate_distance_fields_notify_shutdown_and_logs(tmp_path, r
     daemon = Daemon(tmp_path, base_config(rx, scene, params_file, logging={"dir": str(logs), "every_n": 5}),
                     env={"NOTIFY_SOCKET": notify.path, "WATCHDOG_USEC": "1500000"})
     try:
-        wait(lambda: "READY=1" in notify.lines(), 90, daemon.proc, "READY=1")
+        wait(lambda: "READY=1" in notify.lines(), PATIENCE_S, daemon.proc, "READY=1")
         t0 = time.monotonic()
-        wait(lambda: time.monotonic() - t0 > 3.5, 10, daemon.proc, "3.5 s of messages")
+        readings(rx, 6, daemon.proc, since=t0)
+        wait(lambda: time.monotonic() - t0 > 3.5, PATIENCE_S, daemon.proc, "3.5 s of messages")
+        t1 = time.monotonic()
         code, took = daemon.terminate(timeout=SHUTDOWN_S + 10)
     finally:
         daemon.kill()
         notify.close()
     err = daemon.stderr()
     assert code == 0, err
-    assert took < SHUTDOWN_S + 2.0, f"SIGTERM took {took:.2f} s"
+    assert took < SHUTDOWN_S + 10.0, f"SIGTERM took {took:.2f} s"   # bounded by shutdown_timeout_s, not hung
     assert "shutdown complete" in err and "Traceback" not in err
 
     ds = rx.timed("DISTANCE_SENSOR", since=t0)
-    assert len(ds) >= 2, "no readings: every estimate was older than max_age_ms (a starved stereo stage)"
-    times = [t for t, _ in ds]
-    rate = (len(ds) - 1) / (times[-1] - times[0])
-    # each estimate is sent once, as soon as it exists: the stereo rate (10 frames/s here, less under
-    # load), capped at rate_hz
-    assert 2.0 <= rate <= RATE_HZ * 1.1, f"{rate:.2f} Hz"
     msgs = [m for _, m in ds]
+    # each estimate is sent once (distinct, rising capture stamps): at most the stereo rate, which the
+    # synthetic camera's 10 frames/s bounds, so never above rate_hz; measured on the capture stamps
+    stamps = [x.time_boot_ms for x in msgs]
+    assert all(b > a for a, b in zip(stamps, stamps[1:]))
+    rate = (len(stamps) - 1) / ((stamps[-1] - stamps[0]) / 1000.0)
+    assert rate <= 10.0 * 1.1 <= RATE_HZ, f"{rate:.2f} Hz"
     valid = [m for m in msgs if m.signal_quality > 1]
     assert len(valid) == len(msgs), f"only {len(valid)} of {len(msgs)} valid"   # nothing blind is ever sent
     for m in valid:
@@ -162,10 +179,9 @@ def test_static_branch_rate_distance_fields_notify_shutdown_and_logs(tmp_path, r
     assert m.horizontal_fov == pytest.approx(math.atan(106.5 / 350) + math.atan(106.5 / 350), rel=0.01)
     assert m.vertical_fov == pytest.approx(2 * math.atan(60 / 350), rel=0.02)
     assert (m.get_srcSystem(), m.get_srcComponent()) == (1, 191)
-    stamps = [x.time_boot_ms for x in msgs]
-    assert all(b > a for a, b in zip(stamps, stamps[1:]))
-    beats = [m for _, m in rx.timed("HEARTBEAT", since=t0)]
-    assert 3 <= len(beats) <= 5 and all((b.type, b.autopilot) == (18, 8) for b in beats)
+    beats = [m for t, m in rx.timed("HEARTBEAT", since=t0) if t <= t1]
+    # 1 Hz over the window (its length measured: a loaded machine stretches it), never faster
+    assert 3 <= len(beats) <= (t1 - t0) + 1.5 and all((b.type, b.autopilot) == (18, 8) for b in beats)
 
     lines = notify.lines()
     ready = next(d for _, d in notify.datagrams if "READY=1" in d)
@@ -184,31 +200,47 @@ def test_static_branch_rate_distance_fields_notify_shutdown_and_logs(tmp_path, r
 def test_moving_branch_is_followed(tmp_path, rx, params_file):
     scene = {"width": 320, "height": 240, "focal_px": 200.0, "branch_distance_m": 1.0, "branch_radius_m": 0.04,
              "seed": 2}
-    source = {"kind": "synthetic", "fps": 10, "approach_speed_mps": 0.25, "stop_distance_m": 0.6, "scene": scene}
+    # 0.08 m/s from 1.0 m: 5 s of motion to the 0.6 m stop, so that a loaded machine still measures it moving
+    source = {"kind": "synthetic", "fps": 10, "approach_speed_mps": 0.08, "stop_distance_m": 0.6, "scene": scene}
     logs = tmp_path / "logs"
+    plateau = truth_of(scene, Pose.forward(0.4))
     daemon = Daemon(tmp_path, base_config(rx, scene, params_file, source=source,
                                           logging={"dir": str(logs), "every_n": 1}))
+
+    def metas():
+        out = []
+        for p in sorted(logs.glob("*/frames/*_meta.json")):
+            try:
+                out.append(json.loads(p.read_text()))
+            except (OSError, ValueError):      # being written
+                pass
+        return out
+
     try:
-        wait(lambda: any(m.signal_quality > 1 for _, m in rx.timed("DISTANCE_SENSOR")), 90, daemon.proc,
-             "a valid distance")
-        time.sleep(3.5)                      # 0.25 m/s from 1.0 m: the 0.6 m stop is reached after 1.6 s
+        readings(rx, 1, daemon.proc, what="valid reading")
+        # the stop reached, by the frames' own truth: then 5 readings sent at the plateau
+        wait(lambda: any(m["branch_distance_m"] <= plateau + 1e-3 for m in metas()), PATIENCE_S, daemon.proc,
+             "a frame at the stop")
+        t_stop = time.monotonic()
+        readings(rx, 5, daemon.proc, since=t_stop, what="readings at the stop")
         code, _ = daemon.terminate(timeout=SHUTDOWN_S + 10)
     finally:
         daemon.kill()
     assert code == 0, daemon.stderr()
-    valid = [(t, m.current_distance / 100.0) for t, m in rx.timed("DISTANCE_SENSOR") if m.signal_quality > 1]
-    first = np.median([d for _, d in valid[:5]])
-    last = [d for t, d in valid if t > valid[-1][0] - 1.0]
-    plateau = truth_of(scene, Pose.forward(0.4))
-    assert first > 0.8, valid[:5]
+    last = [m.current_distance / 100.0 for m in rx.of("DISTANCE_SENSOR", since=t_stop) if m.signal_quality > 1]
     assert np.median(last) == pytest.approx(plateau, rel=0.03)
     # every frame the daemon logged was measured close to that frame's own truth (5 %: at 320x240 the
-    # branch is only 13-21 px of disparity, and SGBM's pixel locking alone costs up to 0.45 px)
-    metas = [json.loads(p.read_text()) for p in sorted(logs.glob("*/frames/*_meta.json"))]
-    moving = [m for m in metas if m["branch_distance_m"] > plateau + 0.02]
+    # branch is only 13-21 px of disparity, and SGBM's pixel locking alone costs up to 0.45 px), and
+    # the frames measured span the approach: it was followed, not seen once at each end
+    logged = metas()
+    moving = [m for m in logged if m["branch_distance_m"] > plateau + 0.02]
     assert len(moving) >= 5
-    for m in metas:
+    assert max(m["branch_distance_m"] for m in moving) - min(m["branch_distance_m"] for m in moving) >= 0.15
+    for m in logged:
         assert m["measured_distance_m"] == pytest.approx(m["branch_distance_m"], rel=0.05), m
+    # what went out followed too: across the approach down to the plateau
+    sent = [m.current_distance / 100.0 for m in rx.of("DISTANCE_SENSOR") if m.signal_quality > 1]
+    assert max(sent) - min(sent) >= 0.15 and min(sent) <= plateau * 1.03
 
 
 def test_parameters_hot_reload_and_rejection_while_messages_flow(tmp_path, rx, params_file):
@@ -216,18 +248,16 @@ def test_parameters_hot_reload_and_rejection_while_messages_flow(tmp_path, rx, p
              "seed": 1}
     daemon = Daemon(tmp_path, base_config(rx, scene, params_file))
     try:
-        wait(lambda: any(m.signal_quality > 1 for _, m in rx.timed("DISTANCE_SENSOR")), 90, daemon.proc,
-             "a valid distance")
+        readings(rx, 1, daemon.proc, what="valid distance")
         new = PARAMS_64.replace(**{"sgbm.uniqueness_ratio": 15, "sgbm.p2": 3000})
         save_params(new, params_file)
-        wait(lambda: f"uav-depth: params {new.hash()[:8]} loaded" in rx.texts(), 10, daemon.proc, "reload")
-        wait(lambda: f"parameters reloaded from {params_file}: hash {new.hash()}" in daemon.stderr(), 5)
+        wait(lambda: f"uav-depth: params {new.hash()[:8]} loaded" in rx.texts(), PATIENCE_S, daemon.proc, "reload")
+        wait(lambda: f"parameters reloaded from {params_file}: hash {new.hash()}" in daemon.stderr(), PATIENCE_S)
         atomic_write_text(params_file, "sgbm:\n  num_disparities: 40\n")
-        wait(lambda: f"uav-depth: params rejected, kept {new.hash()[:8]}" in rx.texts(), 10, daemon.proc,
+        wait(lambda: f"uav-depth: params rejected, kept {new.hash()[:8]}" in rx.texts(), PATIENCE_S, daemon.proc,
              "rejection")
         t_bad = time.monotonic()
-        time.sleep(1.5)
-        after = [m for _, m in rx.timed("DISTANCE_SENSOR", since=t_bad)]
+        after = [m for _, m in readings(rx, 3, daemon.proc, since=t_bad, what="readings after the rejection")]
         code, _ = daemon.terminate(timeout=SHUTDOWN_S + 10)
     finally:
         daemon.kill()
@@ -252,10 +282,9 @@ def test_disk_full_stops_logging_and_the_daemon_keeps_flying(tmp_path, rx, param
                                                                           "every_n": 1}),
                     preexec_fn=small_disk)
     try:
-        wait(lambda: "uav-depth: logging stopped" in rx.texts(), 90, daemon.proc, "logging stopped")
+        wait(lambda: "uav-depth: logging stopped" in rx.texts(), PATIENCE_S, daemon.proc, "logging stopped")
         t = time.monotonic()
-        time.sleep(1.0)
-        after = [m for _, m in rx.timed("DISTANCE_SENSOR", since=t)]
+        after = [m for _, m in readings(rx, 3, daemon.proc, since=t, what="readings after logging stopped")]
         code, _ = daemon.terminate(timeout=SHUTDOWN_S + 10)
     finally:
         daemon.kill()
@@ -290,4 +319,5 @@ def test_missing_camera_fails_fast_with_a_clear_message(tmp_path, source, messag
     assert proc.returncode == EXIT_UNAVAILABLE, proc.stderr
     errors = [line for line in proc.stderr.splitlines() if line.startswith("uav-depth run: error:")]
     assert len(errors) == 1 and message in errors[0]
-    assert took < 15, f"took {took:.1f} s"      # process start included; depthai's own pipeline build would hang
+    # process start included (seconds of imports on a loaded machine); depthai's own pipeline build would hang
+    assert took < 50, f"took {took:.1f} s"

@@ -1,4 +1,9 @@
-"""The service in-process, against a real pymavlink endpoint: staleness, camera loss, hot reload, start-up failures."""
+"""The service in-process, against a real pymavlink endpoint: staleness, camera loss, hot reload, start-up failures.
+
+The tests hold on a loaded machine (issue 15): waits have a long deadline, the staleness limit and the
+camera timeout are generous except where they are what is tested, and timing claims are checked on the
+estimates' own capture stamps (time_boot_ms counts CLOCK_MONOTONIC, as time.monotonic does).
+"""
 
 import threading
 import time
@@ -20,11 +25,18 @@ SCENE = {"width": 320, "height": 240, "focal_px": 200.0, "branch_distance_m": 0.
 PARAMS_64 = DEFAULT_PARAMS.replace(**{"sgbm.num_disparities": 64})
 
 
+#: Deadline for what a loaded machine takes its time over (never reached when things work).
+PATIENCE_S = 120
+
+
 def config(rx, **sections):
+    # max_age_ms 499 (the largest allowed) and frame_timeout_s 10: a loaded machine neither starves the
+    # readings nor loses the camera; the tests of those rules set their own.
     data = {"source": {"kind": "synthetic", "fps": 10, "scene": SCENE},
             "mavlink": {"url": f"udpout:127.0.0.1:{rx.port}", "rate_hz": 20},
+            "ranging": {"max_age_ms": 499},
             "service": {"status_interval_s": 0.5, "reconnect_min_s": 0.05, "reconnect_max_s": 0.1,
-                        "frame_timeout_s": 0.5, "params_poll_s": 0.1}}
+                        "frame_timeout_s": 10.0, "params_poll_s": 0.1}}
     for k, v in sections.items():
         data[k] = {**data.get(k, {}), **v} if isinstance(v, dict) and k != "source" else v
     return run_config_from_dict(data, sources=SOURCES)
@@ -67,8 +79,8 @@ def test_a_stale_estimate_is_never_sent(rx, params_file):
     # (valid distances) but none may go out, not even as "no measurement" (that reads as clear).
     svc = Service(config(rx, params_file=str(params_file), ranging={"max_age_ms": 1}))
     with Running(svc):
-        assert rx.wait(lambda: len(rx.of("HEARTBEAT")) >= 3)
-        assert rx.wait(lambda: "uav-depth: blind (stale)" in rx.texts())
+        assert rx.wait(lambda: len(rx.of("HEARTBEAT")) >= 3, PATIENCE_S)
+        assert rx.wait(lambda: "uav-depth: blind (stale)" in rx.texts(), PATIENCE_S)
     assert svc.last_estimate is not None and svc.last_estimate.measurement.valid
     assert svc.stats.frames >= 3
     assert rx.of("DISTANCE_SENSOR") == []
@@ -77,7 +89,7 @@ def test_a_stale_estimate_is_never_sent(rx, params_file):
 def test_fresh_estimates_are_sent_and_the_distance_is_right(rx, params_file):
     svc = Service(config(rx, params_file=str(params_file)))
     with Running(svc) as run:
-        assert rx.wait(lambda: len([m for m in rx.of("DISTANCE_SENSOR") if m.signal_quality > 1]) >= 10)
+        assert rx.wait(lambda: len([m for m in rx.of("DISTANCE_SENSOR") if m.signal_quality > 1]) >= 10, PATIENCE_S)
     assert run.report.clean
     valid = [m for m in rx.of("DISTANCE_SENSOR") if m.signal_quality > 1]
     assert all(abs(m.current_distance - 80) <= 3 for m in valid)     # 0.8 m within 3 %
@@ -93,17 +105,20 @@ def test_camera_loss_sends_no_measurement_and_recovers(rx, params_file):
 
     svc = Service(config(rx, params_file=str(params_file), ranging={"max_age_ms": 300}), pose_provider=pose)
     with Running(svc):
-        assert rx.wait(lambda: any(m.signal_quality > 1 for m in rx.of("DISTANCE_SENSOR")))
+        assert rx.wait(lambda: any(m.signal_quality > 1 for m in rx.of("DISTANCE_SENSOR")), PATIENCE_S)
         lost.set()
         t_lost = time.monotonic()
-        assert rx.wait(lambda: "uav-depth: camera lost" in rx.texts())
+        assert rx.wait(lambda: "uav-depth: camera lost" in rx.texts(), PATIENCE_S)
         time.sleep(1.6)                 # long enough for at least one HEARTBEAT (1 Hz)
         lost.clear()
-        assert rx.wait(lambda: "uav-depth: camera back" in rx.texts())
+        assert rx.wait(lambda: "uav-depth: camera back" in rx.texts(), PATIENCE_S)
         t_back = time.monotonic()
-        assert rx.wait(lambda: any(m.signal_quality > 1 for m in rx.of("DISTANCE_SENSOR", since=t_back)))
-    gap = [m for t, m in rx.msgs if m.get_type() == "DISTANCE_SENSOR" and t_lost + 0.45 < t < t_back]
-    assert gap == []                                               # blind: nothing, the autopilot times out
+        assert rx.wait(lambda: any(m.signal_quality > 1 for m in rx.of("DISTANCE_SENSOR", since=t_back)),
+                       PATIENCE_S)
+    # blind: nothing measured after the loss goes out (by the readings' own capture stamps), the autopilot
+    # times out; what arrived after the loss was captured before it
+    gap = [m for t, m in rx.msgs if m.get_type() == "DISTANCE_SENSOR" and t_lost < t < t_back]
+    assert all(m.time_boot_ms <= t_lost * 1000.0 for m in gap), [m.time_boot_ms - t_lost * 1000.0 for m in gap]
     assert "uav-depth: blind (camera lost)" in rx.texts()
     beats = [m.system_status for t, m in rx.msgs if m.get_type() == "HEARTBEAT" and t_lost + 0.2 < t < t_back]
     assert 5 in beats                                              # MAV_STATE_CRITICAL while the camera is gone
@@ -112,18 +127,19 @@ def test_camera_loss_sends_no_measurement_and_recovers(rx, params_file):
 def test_hot_reload_swaps_valid_and_rejects_invalid_parameters(rx, params_file):
     svc = Service(config(rx, params_file=str(params_file)))
     with Running(svc):
-        assert rx.wait(lambda: svc.stats.frames >= 2)
+        assert rx.wait(lambda: svc.stats.frames >= 2, PATIENCE_S)
         first = svc.stage
         new = PARAMS_64.replace(**{"sgbm.uniqueness_ratio": 15})
         save_params(new, params_file)
-        assert rx.wait(lambda: svc.stage.params == new), "new parameters not picked up"
-        assert rx.wait(lambda: f"uav-depth: params {new.hash()[:8]} loaded" in rx.texts())
-        assert rx.wait(lambda: svc.last_estimate.params_hash == new.hash())   # frames use the new stage
+        assert rx.wait(lambda: svc.stage.params == new, PATIENCE_S), "new parameters not picked up"
+        assert rx.wait(lambda: f"uav-depth: params {new.hash()[:8]} loaded" in rx.texts(), PATIENCE_S)
+        assert rx.wait(lambda: svc.last_estimate.params_hash == new.hash(), PATIENCE_S)   # frames use the new stage
         swapped = svc.stage
         atomic_write_text(params_file, "sgbm:\n  num_disparities: 40\n")
-        assert rx.wait(lambda: f"uav-depth: params rejected, kept {new.hash()[:8]}" in rx.texts())
+        assert rx.wait(lambda: f"uav-depth: params rejected, kept {new.hash()[:8]}" in rx.texts(), PATIENCE_S)
         t_bad = time.monotonic()
-        assert rx.wait(lambda: sum(m.signal_quality > 1 for m in rx.of("DISTANCE_SENSOR", since=t_bad)) >= 10)
+        assert rx.wait(lambda: sum(m.signal_quality > 1 for m in rx.of("DISTANCE_SENSOR", since=t_bad)) >= 10,
+                       PATIENCE_S)
         assert svc.stage is swapped and svc.stage is not first
 
 
@@ -202,13 +218,14 @@ def test_a_hung_source_stops_the_watchdog_and_shutdown_stays_bounded(rx):
     runner = threading.Thread(target=lambda: result.setdefault("report", svc.run(stop)), daemon=True)
     try:
         runner.start()
-        assert rx.wait(lambda: svc.stats.frames >= 1 and source.reads >= 2)
+        assert rx.wait(lambda: svc.stats.frames >= 1 and source.reads >= 2, PATIENCE_S)
         assert svc.healthy()
-        assert rx.wait(lambda: not svc.healthy(), timeout=5)       # no more WATCHDOG=1: systemd restarts us
+        assert rx.wait(lambda: not svc.healthy(), timeout=PATIENCE_S)   # no more WATCHDOG=1: systemd restarts us
         stop.set()
-        runner.join(10)
+        runner.join(30)
         report = result["report"]
-        assert report.duration_s < 0.3 + 0.2
+        # bounded by shutdown_timeout_s (0.3 s, plus what a loaded machine adds), not by the hung read (60 s)
+        assert report.duration_s < 0.3 + 10.0
         assert any(item.startswith("the capture thread (stuck for") for item in report.abandoned), report.abandoned
     finally:
         source.release.set()
@@ -219,7 +236,7 @@ def test_a_replay_of_a_logged_session_runs_to_its_end(rx, tmp_path, params_file)
     logs = tmp_path / "logs"
     svc = Service(config(rx, params_file=str(params_file), logging={"dir": str(logs), "every_n": 2}))
     with Running(svc):
-        assert rx.wait(lambda: svc.framelog is not None and svc.framelog.written >= 4)
+        assert rx.wait(lambda: svc.framelog is not None and svc.framelog.written >= 4, PATIENCE_S)
     replay = Service(config(rx, params_file=str(params_file), source={"kind": "replay", "path": str(logs)}))
     start = time.monotonic()
     report = replay.run(threading.Event())      # returns by itself after the last frame
