@@ -77,6 +77,10 @@ def rejected_path(out: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from uav_depth.cli.progress import Counted, Progress
+
+    terminal = Progress(enabled=False if args.no_progress else None)   # the phases outside the bar
+    terminal.phase("loading the tuner")     # its imports take seconds on a small machine
     import datetime
     import math
     import signal
@@ -112,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
     fitness = FITNESS[metric]
     # Reports: the paper's fitnesses are reported in the paper's convention, every other one as benchmarks do.
     convention = "paper" if metric in PAPER_FITNESS else "bench"
+    terminal.phase(f"loading the frames of {args.logdir}")
     base = load_params(args.base) if args.base else DEFAULT_PARAMS
     train, holdout = load_split(args.logdir, args.holdout, fitness.needs)
     framesets = {"train": train, "holdout": holdout}
@@ -148,6 +153,7 @@ def run(args: argparse.Namespace) -> int:
                 result.best_params()        # raises when every candidate failed
                 budget = None
                 if args.max_ms is not None:
+                    terminal.phase(f"re-timing the search front under --max-ms {args.max_ms:g}")
                     choice = choose_under_budget(store, metric, train, args.max_ms)
                     budget = {"max_ms": args.max_ms, "front": choice.front,
                               "chosen": None if choice.params is None else
@@ -156,12 +162,17 @@ def run(args: argparse.Namespace) -> int:
                     candidates = [] if choice.params is None else [(choice.params.to_dict(), choice.value)]
                 else:
                     candidates = top_candidates(store, metric)
-                selection = select(executor, metric, base, result.baseline.value, candidates, bool(len(holdout)))
+                terminal.phase(f"choosing among the best candidates on the {len(holdout)} held-out frame(s)"
+                               if len(holdout) else "choosing among the best candidates on the training frames")
+                selection = select(Counted(executor, terminal, "candidates scored"), metric, base,
+                                   result.baseline.value, candidates, bool(len(holdout)))
                 chosen = params_from_dict(selection.chosen["params"])
                 chosen_value = selection.chosen["train"]
                 front = search_front(store, metric)
                 names = [n for n in ("train", "holdout") if len(framesets[n])]
-                scores = full_scores(executor, [base, chosen], names, convention)
+                terminal.phase("scoring the base and the chosen parameters with every metric on "
+                               + " and ".join(names))
+                scores = full_scores(Counted(executor, terminal, "scored"), [base, chosen], names, convention)
             finally:
                 executor.close()
     except TuneInterrupted as exc:
@@ -231,6 +242,7 @@ def run(args: argparse.Namespace) -> int:
                     "space": describe_space(study.space), "base": base.to_dict(), "out": args.out,
                     "opencv": cv2.__version__, "version": __version__}
         points = [(ev.ms, ev.value) for _, p, ev in store.evaluations() if ev.ok and math.isfinite(ev.ms)]
+        terminal.phase(f"writing the report and its plots into {args.report}")
         write_report(args.report, summary, resolved, [framesets[n] for n in names], base, chosen, points)
         print(f"wrote report {args.report}")
     store.close()
