@@ -426,9 +426,16 @@ def test_avoidance_stops_the_approach_on_the_daemons_readings(tmp_path):
     for r in results:
         print(f"\n{r}")
     assert "scripted" not in log
-    # The daemon's readings reached the autopilot and track the geometry (the proximity id 10 stream).
-    assert all(r.readings > 20 for r in results), results
+    # The daemon's readings reached the autopilot (the proximity id 10 stream) on every approach, and
+    # track the geometry: never nearer than it was (beyond 5 % and 1 cm), and never older than what
+    # the daemon may send (ranging.max_age_ms of the laptop config from capture, plus a pose at most
+    # 0.1 s old when rendered and the trip to the ground station), so no timing is asserted.
+    assert all(r.readings > 5 for r in results), results
     slow = [r for r in results if r.speed <= 1.0]
-    assert all(r.reading_lag_m is not None and abs(r.reading_lag_m) < 0.25 for r in slow), results
+    assert all(r.readings > 20 for r in slow), results
+    max_age_s = 0.45
+    for r in slow:
+        assert r.reading_lag_m is not None and \
+            -0.05 * 2.5 - 0.01 <= r.reading_lag_m <= r.speed * (max_age_s + 0.2) + 0.05 * 2.5 + 0.01, r
     # Avoidance stopped the slow approaches short of the surface, on those readings alone.
     assert all(r.stopped and r.closest_m >= 0.3 for r in slow), results
