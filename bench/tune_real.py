@@ -179,6 +179,8 @@ def main() -> int:
     ap.add_argument("--row", action="append", default=[],
                     help="another row, 'LABEL:TUNE ARGS' (e.g. 'tpe flown-bad2:--metric flown-bad2')")
     ap.add_argument("--skip-flight", action="store_true")
+    ap.add_argument("--skip-default", action="store_true")
+    ap.add_argument("--skip-ga-paper", action="store_true")
     args = ap.parse_args()
     from uav_depth.cli.benchmark import machine_line
 
@@ -196,6 +198,7 @@ def main() -> int:
     notes = []
     runs = [("tune (default: tpe, flown)", work / "tuned.yaml", ()),
             ("ga-paper (faithful: mse, WLS map)", work / "ga-paper.yaml", ("--optimizer", "ga-paper"))]
+    runs = [r for r, skip in zip(runs, (args.skip_default, args.skip_ga_paper)) if not skip]
     for spec in args.row:
         label, _, extra = spec.partition(":")
         runs.append((label, work / f"row-{len(runs)}.yaml", tuple(extra.split())))

@@ -5,7 +5,8 @@ scenes. ``--folds`` (auto: :func:`auto_folds`) splits the sessions into k folds
 (fold j holds out sessions j, j+k, j+2k ... in name order); each fold runs its own
 search on the other sessions and chooses its winner on its own held-out sessions
 (``study.select``: clean, those frames were never trained on). The winner of the
-whole run is the fold winner with the best mean held-out score over all folds
+whole run is the fold winner with the best mean held-out score over all folds,
+among those that beat the base on their own held-out sessions
 (:func:`cross_select`); the cross-validated estimate the gate uses is the mean over
 folds of each fold's winner on its own held-out sessions against the base there
 (every number in it is held out).
@@ -124,7 +125,7 @@ def nudge_check(executor: Executor, fitness_name: str, params: StereoParams, val
 @dataclass(frozen=True)
 class CrossSelection:
     """The winner over k folds. ``folds``: per fold, the base's and the fold winner's train and held-out values
-    (``study.Selection`` rows); ``pool``: each distinct fold winner with its held-out value on every fold and the
+    (``study.Selection`` rows); ``pool``: each distinct fold winner that beat the base on its own held-out sessions, with its held-out value on every fold and the
     mean; ``winner``: index into pool, or None (no fold found a non-fragile candidate better than its base)."""
 
     folds: list[dict[str, Any]]
@@ -152,8 +153,8 @@ def cross_select(executor: Executor, fitness_name: str, base: StereoParams, sele
     base_h = [s.base["holdout"] for s in selections]
     pool: list[dict[str, Any]] = []
     for j, s in enumerate(selections):
-        if s.winner == 0:
-            continue
+        if not s.beats_base:
+            continue                  # it lost to the base on its own held-out sessions: it may not win elsewhere
         params = s.chosen["params"]
         if any(p["params"] == params for p in pool):
             continue
