@@ -160,7 +160,7 @@ def distance_report(estimate: Estimate | None, limits: RangeLimits, now: float, 
     """
     if estimate is not None:
         limits = estimate.limits
-    min_cm, max_cm = wire_range_cm(limits.min_distance_m, limits.max_distance_m)
+    min_cm, max_cm = wire_range_cm(limits.min_distance_m, getattr(limits, "stated_max_m", limits.max_distance_m))
     age = None if estimate is None else now - estimate.t_capture
     stamp = boot_ms(estimate.t_capture if estimate is not None else now, t_start)
 
@@ -184,11 +184,17 @@ def distance_report(estimate: Estimate | None, limits: RangeLimits, now: float, 
         return report(NOTHING_CONFIDENT)
     if cm <= min_cm:         # nearer than the minimum range: the nearest value the autopilots take
         return report(TOO_CLOSE, min_cm + 1, q=_quality(m.quality))
-    if m.sigma_m is None or not math.isfinite(m.sigma_m):
-        cov = UINT8_UNKNOWN
-    else:   # variance in cm^2; a measured 0.3 cm^2 rounds up to 1, never to 0 ("unknown" to some readers)
-        cov = int(min(UINT8_UNKNOWN - 1, max(1, math.ceil((m.sigma_m * 100.0) ** 2))))
-    return report(MEASURING, cm, cov, max(2, _quality(m.quality)))
+    return report(MEASURING, cm, covariance_cm2(m.sigma_m), max(2, _quality(m.quality)))
+
+
+def covariance_cm2(sigma_m: float | None) -> int:
+    """DISTANCE_SENSOR ``covariance``: the variance in cm^2, 1..254, rounded up (a measured 0.3 cm^2 is 1,
+    never 0, "unknown" to some readers); 255 (unknown) when there is no sigma or it is larger than the
+    field can carry (15.9 cm): never a smaller, more precise-looking value."""
+    if sigma_m is None or not math.isfinite(sigma_m):
+        return UINT8_UNKNOWN
+    cov = max(1, math.ceil((sigma_m * 100.0) ** 2 - 1e-6))   # - 1e-6: float noise is no extra cm^2
+    return cov if cov < UINT8_UNKNOWN else UINT8_UNKNOWN
 
 
 # -- the link ---------------------------------------------------------------------------------

@@ -45,6 +45,8 @@ CLUSTER_MARGIN_PX = 1.0
 #: whole branch), so even a perfectly tight cluster is only known to about +-0.5 px: a uniform
 #: error of that width has sigma 1/sqrt(12).
 PIXEL_LOCKING_SIGMA_PX = 1.0 / math.sqrt(12.0)
+#: The largest sigma DISTANCE_SENSOR's ``covariance`` (uint8 cm^2, 255 = unknown) can carry: 15.9 cm.
+WIRE_SIGMA_MAX_M = math.sqrt(254.0) / 100.0
 #: Too close by the near pass (:mod:`uav_depth.core.disparity.near`): at least this share of the ROI
 #: matched confidently beyond the main search. Measured with the flight file (docs/ranging.md):
 #: branches at 0.08-0.27 m give 0.21-0.74, frames with nothing nearer than the minimum range at most 0.06.
@@ -69,6 +71,7 @@ class RangingConfig:
     surface_quantile: float = 0.2
     max_jump_rel: float = 0.2
     confirm_frames: int = 2
+    max_sigma_m: float = WIRE_SIGMA_MAX_M
 
     KEYS = (
         Key("roi", "roi", None, "region of interest in the rectified left image, px; null: the central third",
@@ -94,6 +97,9 @@ class RangingConfig:
         Key("max_jump_rel", "float", 0.2, "a change larger than this fraction is held back until confirmed "
             "(single-frame outlier rejection); 0 disables", 0.0, 10.0),
         Key("confirm_frames", "int", 2, "consecutive agreeing frames that confirm a jump", 1, 100),
+        Key("max_sigma_m", "float", WIRE_SIGMA_MAX_M, "a reading less precise (1 sigma, m) is no measurement and "
+            f"DISTANCE_SENSOR's range ends where the sigma floor reaches it; default {WIRE_SIGMA_MAX_M:.4f}, the most "
+            "its covariance can carry (larger: such readings go out with covariance 255, unknown)", 0.001, 100.0),
     )
 
 
@@ -135,6 +141,12 @@ class RangeLimits:
     max_distance_m: float
     hfov_rad: float
     vfov_rad: float
+    precise_max_m: float | None = None    # where the sigma floor reaches ranging.max_sigma_m (None: nowhere)
+
+    @property
+    def stated_max_m(self) -> float:
+        """DISTANCE_SENSOR's range: ``max_distance_m``, or nearer where readings stop being precise."""
+        return self.max_distance_m if self.precise_max_m is None else min(self.max_distance_m, self.precise_max_m)
 
 
 def default_roi(width: int, height: int) -> tuple[int, int, int, int]:
@@ -186,7 +198,11 @@ class Ranger:
                               sg.num_disparities)
         # Farther than max_distance_m (or than the smallest searched disparity) is "no measurement".
         self.d_floor = max(self.fb / config.max_distance_m, sg.min_disparity * self.px, 1.0 / 16.0)
+        # DISTANCE_SENSOR's range ends where sigma_z = z^2 / fb * sigma_d passes max_sigma_m at the floor.
+        self.sigma_floor_px = PIXEL_LOCKING_SIGMA_PX * self.px
+        self.d_precise = math.sqrt(self.fb * self.sigma_floor_px / config.max_sigma_m)
         self.limits = RangeLimits(min_distance_m=self.fb / d_max, max_distance_m=self.fb / self.d_floor,
+                                  precise_max_m=self.fb / self.d_precise,
                                   hfov_rad=_fov(roi[0], roi[2], calibration.principal_point[0],
                                                 calibration.focal_px),
                                   vfov_rad=_fov(roi[1], roi[3], calibration.principal_point[1],
@@ -231,8 +247,7 @@ class Ranger:
             w = np.ones_like(v)
         # Larger disparity is nearer: leave surface_quantile of the object's weight above d.
         d = _weighted_quantile(v, w, 1.0 - cfg.surface_quantile)
-        sigma_d = max(1.4826 * _weighted_median(np.abs(v - _weighted_median(v, w)), w),
-                      PIXEL_LOCKING_SIGMA_PX * self.px)
+        sigma_d = max(1.4826 * _weighted_median(np.abs(v - _weighted_median(v, w)), w), self.sigma_floor_px)
         z = self.fb / d
         sigma_z = z * z / self.fb * sigma_d
         mean_conf = float(w.mean()) if conf is not None else 1.0
@@ -242,11 +257,11 @@ class Ranger:
         rows, cols = np.flatnonzero(obj.any(axis=1)), np.flatnonzero(obj.any(axis=0))
         bbox = (int(cols[0]) + x0, int(rows[0]) + y0, int(cols[-1]) + x0 + 1, int(rows[-1]) + y0 + 1)
         n_obj = int(v.size)
-        if quality < cfg.min_quality:
+        why = (f"sigma {sigma_z:.3f} m above max_sigma_m {cfg.max_sigma_m:.3f} m" if sigma_z > cfg.max_sigma_m else
+               f"signal quality {quality} below min_quality {cfg.min_quality}" if quality < cfg.min_quality else None)
+        if why is not None:
             return Measurement(None, quality=quality, bbox=bbox, disparity_px=d, sigma_px=sigma_d, n_px=n_obj,
-                               valid_fraction=valid_fraction,
-                               reason=f"signal quality {quality} below min_quality {cfg.min_quality} "
-                                      f"(the object would read {z:.3f} m)")
+                               valid_fraction=valid_fraction, reason=f"{why} (the object would read {z:.3f} m)")
         return Measurement(distance_m=z, sigma_m=sigma_z, quality=quality, bbox=bbox, disparity_px=d,
                            sigma_px=sigma_d, n_px=n_obj, valid_fraction=valid_fraction)
 

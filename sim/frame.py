@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -66,3 +67,36 @@ def nearest_distance(depth: np.ndarray, mask: np.ndarray, roi: tuple[int, int, i
         depth, mask = depth[y0:y1, x0:x1], mask[y0:y1, x0:x1]
     vals = depth[mask]
     return float(vals.min()) if vals.size else float("nan")
+
+
+#: A part of the image: (x0, y0, x1, y1) px.
+View = tuple[int, int, int, int]
+
+
+def window_views(width: int, height: int, window: View | None, reach_px: float) -> tuple[View, View]:
+    """(the window, what to ray-cast for it): ``window`` (None: the whole image) and, for a window, it
+    grown by ``reach_px`` (+1) on each side within the image: what the optical blur mixes into it.
+
+    A window render is a full render's pixels inside the window (the same per-pixel arithmetic; the
+    sensor noise is drawn afresh), and blank outside (images 0, depth inf, labels sky, objects -1).
+    """
+    if window is None:
+        return (0, 0, width, height), (0, 0, width, height)
+    x0, y0, x1, y1 = (int(v) for v in window)
+    if not (0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height):
+        raise ValueError(f"window {list(window)} must lie inside the {width}x{height} image")
+    pad = int(math.ceil(reach_px)) + 1
+    return (x0, y0, x1, y1), (max(0, x0 - pad), max(0, y0 - pad), min(width, x1 + pad), min(height, y1 + pad))
+
+
+def shifted(point: tuple[float, float], view: View) -> tuple[float, float]:
+    """An image point in the coordinates of ``view``'s buffers."""
+    return point[0] - view[0], point[1] - view[1]
+
+
+def paste(part: np.ndarray, view: View, inner: View, size: tuple[int, int], fill) -> np.ndarray:
+    """The ``inner`` window of ``part`` (rendered over ``view``) in a full-size map filled with ``fill``."""
+    full = np.full(size + part.shape[2:], fill, part.dtype)
+    x0, y0, x1, y1 = inner
+    full[y0:y1, x0:x1] = part[y0 - view[1]:y1 - view[1], x0 - view[0]:x1 - view[0]]
+    return full

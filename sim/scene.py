@@ -40,7 +40,7 @@ from uav_depth.sim.texture import (BARK_COS as _BARK_COS, BARK_SIN as _BARK_SIN,
                                    BG_SIN as _BG_SIN, TEX_M as _TEX_M,
                                    TEX_SIZE as _TEX_SIZE, periodic_noise as _periodic_noise, texture as _texture,
                                    wrap as _wrap)
-from uav_depth.sim.frame import Pose, StereoFrame, nearest_distance
+from uav_depth.sim.frame import Pose, StereoFrame, View, nearest_distance, paste, shifted, window_views
 from uav_depth.sim.needles import cast_needles
 from uav_depth.sim.scene_config import SceneConfig, background_period_px, vary
 from uav_depth.sim.truth import Truth
@@ -116,29 +116,29 @@ class Scene:
 
     # -- rendering ---------------------------------------------------------------------------
 
-    def _rays(self, row_shift_px: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    def _rays(self, row_shift_px: float, view: View) -> tuple[np.ndarray, np.ndarray]:
         c = self.config
         cx, cy = self.calibration.principal_point
-        u = (np.arange(c.width, dtype=np.float32) - cx) / np.float32(c.focal_px)
+        u = (np.arange(view[0], view[2], dtype=np.float32) - cx) / np.float32(c.focal_px)
         if row_shift_px == 0.0:
-            v = (np.arange(c.height, dtype=np.float32) - cy) / np.float32(c.focal_px)
+            v = (np.arange(view[1], view[3], dtype=np.float32) - cy) / np.float32(c.focal_px)
         else:   # row y sees what row y - shift of a perfect rig sees
-            v = ((np.arange(c.height, dtype=np.float64) - row_shift_px - cy) / c.focal_px).astype(np.float32)
+            v = ((np.arange(view[1], view[3], dtype=np.float64) - row_shift_px - cy) / c.focal_px).astype(np.float32)
         return u, v
 
-    def _directions(self, rot: np.ndarray, row_shift_px: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """World ray directions rot @ (u, v, 1), each (H, W) float32, read-only.
+    def _directions(self, rot: np.ndarray, row_shift_px: float, view: View) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """World ray directions rot @ (u, v, 1) over ``view``, each (H, W) float32, read-only.
 
         Both views share them (unless the right one has a rectification error), and
         the last rotation's are kept: a rig that flies without turning (SITL's
         approach, benchmarks) computes them once.
         """
-        key = np.asarray(rot, dtype=np.float64).tobytes() + np.float64(row_shift_px).tobytes()
+        key = (np.asarray(rot, dtype=np.float64).tobytes() + np.float64(row_shift_px).tobytes()
+               + np.asarray(view, np.int64).tobytes())
         if key in self._dirs_cache:
             return self._dirs_cache[key]
-        c = self.config
-        h, w = c.height, c.width
-        u, v = self._rays(row_shift_px)
+        h, w = view[3] - view[1], view[2] - view[0]
+        u, v = self._rays(row_shift_px, view)
         dx = rot[0, 0] * u[None, :] + rot[0, 1] * v[:, None] + np.float32(rot[0, 2])
         dy = rot[1, 0] * u[None, :] + rot[1, 1] * v[:, None] + np.float32(rot[1, 2])
         dz = rot[2, 0] * u[None, :] + rot[2, 1] * v[:, None] + np.float32(rot[2, 2])
@@ -150,14 +150,14 @@ class Scene:
         self._dirs_cache[key] = dirs  # type: ignore[assignment]
         return dirs  # type: ignore[return-value]
 
-    def _render_view(self, origin: np.ndarray, rot: np.ndarray,
-                     dirs: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Ray-cast one view. Returns (intensity float32 0..1-ish, depth m, labels, objects)."""
+    def _render_view(self, origin: np.ndarray, rot: np.ndarray, dirs: tuple[np.ndarray, np.ndarray, np.ndarray],
+                     view: View) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Ray-cast one view over ``view`` (the part of the image). Returns (intensity float32 0..1-ish,
+        depth m, labels, objects)."""
         c = self.config
-        h, w = c.height, c.width
+        h, w = view[3] - view[1], view[2] - view[0]
         # Ray direction in world = rot @ (u, v, 1); t along it is depth along the optical axis.
-        dx, dy, dz = dirs if dirs is not None else self._directions(rot)
+        dx, dy, dz = dirs
         labels = np.zeros((h, w), np.uint8)
 
         # Background plane z = Zbg in the world.
@@ -190,13 +190,13 @@ class Scene:
             if cyl.kind == NEEDLE:
                 needles.append((i + 1, cyl))
             else:
-                self._cast_cylinder(cyl, i + 1, origin, rot, dx, dy, dz, depth, labels, intensity, objects)
+                self._cast_cylinder(cyl, i + 1, origin, rot, dx, dy, dz, depth, labels, intensity, objects, view)
         if needles:
-            alone = cast_needles(needles, origin, rot, (dx, dy, dz), c.focal_px, self.calibration.principal_point,
+            alone = cast_needles(needles, origin, rot, (dx, dy, dz), c.focal_px, shifted(self.calibration.principal_point, view),
                                  depth, labels, intensity, objects, _LIGHT)
             for n in alone:
                 self._cast_cylinder(needles[n][1], needles[n][0], origin, rot, dx, dy, dz, depth, labels,
-                                    intensity, objects)
+                                    intensity, objects, view)
         if self._shadows is not None:
             self._shade(origin, dx, dy, dz, depth, objects, intensity)
         return intensity, depth, labels, objects
@@ -225,7 +225,7 @@ class Scene:
         fold = lambda a: np.pad(a, (0, pad)).reshape(rows, cols)  # noqa: E731
         return self._sample(tex_id, fold(tu), fold(tv)).ravel()[:n]
 
-    def _candidates(self, cyl: Cylinder, o: np.ndarray, rot: np.ndarray) -> np.ndarray | None:
+    def _candidates(self, cyl: Cylinder, o: np.ndarray, rot: np.ndarray, view: View) -> np.ndarray | None:
         """Flat indices of the pixels whose rays may hit ``cyl``; None means every pixel.
 
         Conservative culling (why the renderer is fast): the axis is cut into pieces
@@ -235,13 +235,13 @@ class Scene:
         Boxes are widened by two pixels against float32 rounding in the hit test. A
         piece that reaches the camera plane (z <= 0 somewhere) could project
         anywhere: then every pixel is a candidate. The per-pixel arithmetic is the
-        same for candidates as before, so the image does not change.
+        same for candidates as before, so the image does not change. Indices: ``view``'s.
         """
         c = self.config
-        h, w = c.height, c.width
+        h, w = view[3] - view[1], view[2] - view[0]
         centres, _, rho = cyl.pieces()
         cam = (centres - o[None, :]) @ rot                     # rows: rot.T @ (C - o)
-        cx, cy = self.calibration.principal_point
+        cx, cy = shifted(self.calibration.principal_point, view)
         zlo, zhi = cam[:, 2] - rho, cam[:, 2] + rho
         front = zhi > 0                                         # pieces wholly behind cannot be hit (t > 0)
         if np.any(front & (zlo <= 1e-6)):
@@ -270,8 +270,8 @@ class Scene:
         return (rows + bi) * w + (cols + bj)
 
     def _cast_cylinder(self, cyl: Cylinder, obj: int, o: np.ndarray, rot: np.ndarray, dx, dy, dz, depth, labels,
-                       intensity, objects) -> None:
-        idx = self._candidates(cyl, o, rot)
+                       intensity, objects, view: View) -> None:
+        idx = self._candidates(cyl, o, rot, view)
         if idx is None:
             idx = np.arange(depth.size)
         if not idx.size:
@@ -326,22 +326,30 @@ class Scene:
         objects.ravel()[flat] = obj
         intensity.ravel()[flat] = (cyl.albedo * (0.45 + 0.55 * tex) * shade).astype(np.float32)
 
-    def render(self, pose: Pose | None = None, rng: np.random.Generator | None = None) -> StereoFrame:
-        """Render both views at ``pose`` (default identity). ``rng`` draws the sensor noise."""
+    def render(self, pose: Pose | None = None, rng: np.random.Generator | None = None, window: View | None = None):
+        """Render both views at ``pose`` (default identity). ``rng`` draws the sensor noise. ``window``:
+        ray-cast only that part (:func:`~uav_depth.sim.frame.window_views`; the rest is blank)."""
         pose = pose or Pose()
         rng = rng if rng is not None else np.random.default_rng(self.config.seed)
+        c = self.config
         rot = np.asarray(pose.rotation, dtype=np.float64)
         o_left = np.asarray(pose.position, dtype=np.float64)
-        o_right = o_left + rot @ np.array([self.config.baseline_m, 0.0, 0.0])
-        dirs = self._directions(rot)
-        il, depth, labels, objects = self._render_view(o_left, rot, dirs)
-        dirs_r = dirs if self.config.rect_error_px == 0 else self._directions(rot, self.config.rect_error_px)
-        ir, _, labels_r, _ = self._render_view(o_right, rot, dirs_r)
-        left = finish(self.config, il, labels, rng)
-        right = finish(self.config, ir, labels_r, rng, right=True)
+        o_right = o_left + rot @ np.array([c.baseline_m, 0.0, 0.0])
+        # The blur reaches this far around the window (OpenCV's float kernel radius: 4 sigma).
+        inner, view = window_views(c.width, c.height, window, 4.0 * math.hypot(c.blur_sigma, c.right_blur_sigma))
+        dirs = self._directions(rot, 0.0, view)
+        il, depth, labels, objects = self._render_view(o_left, rot, dirs, view)
+        dirs_r = dirs if c.rect_error_px == 0 else self._directions(rot, c.rect_error_px, view)
+        ir, _, labels_r, _ = self._render_view(o_right, rot, dirs_r, view)
+        left = finish(c, il, labels, rng)
+        right = finish(c, ir, labels_r, rng, right=True)
+        if window is not None:
+            left, right, depth, labels, objects = (paste(a, view, inner, (c.height, c.width), fill) for a, fill in
+                                                   ((left, 0), (right, 0), (depth, np.inf), (labels, SKY), (objects, -1)))
         with np.errstate(divide="ignore"):
-            disp = (self.config.focal_px * self.config.baseline_m / depth).astype(np.float32)
-        return StereoFrame(left, right, disp, depth, labels, objects, self.thickness_m, self.config.focal_px)
+            disp = (c.focal_px * c.baseline_m / depth).astype(np.float32)
+        return StereoFrame(left, right, disp, depth, labels, objects, self.thickness_m, c.focal_px)
+
 
 
 def render_pair(config: SceneConfig, pose: Pose | None = None, frame_index: int = 0) -> StereoFrame:

@@ -234,6 +234,8 @@ class PoseTracker:
         self._attitude: tuple[tuple[float, float, float], float] | None = None
         self._anchor: Anchor | None = config.anchor(None, distance_m)
         self.messages = 0
+        #: When the vehicle was where the last pose returned puts it (monotonic s: the older message's arrival).
+        self.pose_time: float | None = None
 
     def on_message(self, msg: Any) -> None:
         """Take a LOCAL_POSITION_NED or ATTITUDE message (pymavlink); others are ignored."""
@@ -301,6 +303,7 @@ class PoseTracker:
         age = self.clock() - state.t
         if age > self.config.pose_timeout_s:
             raise SourceError(f"sitl: the autopilot's pose is {age:.1f} s old (limit {self.config.pose_timeout_s:g} s)")
+        self.pose_time = state.t
         return anchor.pose(state, self.config.mount)
 
 
@@ -334,13 +337,16 @@ class PoseRecorder:
         self._log: collections.deque[tuple[float, VehicleState]] = collections.deque(maxlen=keep)
         self._lock = threading.Lock()
 
+    @property
+    def pose_time(self) -> float | None:
+        return self.tracker.pose_time
+
     def __call__(self, t_s: float = 0.0) -> Pose:
-        t = self.tracker.clock()
         pose = self.tracker(t_s)
         state = self.tracker.state()
         if state is not None:
-            with self._lock:
-                self._log.append((t, state))
+            with self._lock:   # keyed by the pose's own time: the frame's capture time
+                self._log.append((state.t, state))
         return pose
 
     def state_at(self, t: float, within_s: float = 0.1) -> VehicleState | None:

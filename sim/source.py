@@ -9,8 +9,16 @@ reference disparity.
 
 Rendering a 1280x720 pair costs about half a second, so a pose that did not
 change since the last frame is not rendered again: the cached pair is delivered
-(same pixels, same noise) with a fresh capture time. Frames are paced at ``fps``;
+(same pixels, same noise) with a fresh capture time (a pose provider that says when
+its pose was true, ``pose_time``, stamps the frame with that time, and a pose time
+already delivered gives no new frame). Frames are paced at ``fps``;
 when rendering is slower than that, frames are skipped, never queued.
+
+``read_window`` (a callable, set by whoever knows what reads the frames: ``uav-depth
+sitl``) returns the part of the image that anything downstream reads, or None for
+all of it; only that part (and the truth ROI) is ray-cast, the rest of the frame is
+black (:meth:`~uav_depth.sim.scene.Scene.render`'s ``window``). The flight
+pipeline reads its crops only, so at 640x360 this halves the render's cost.
 """
 
 from __future__ import annotations
@@ -25,7 +33,10 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from uav_depth.core.keys import Key, section_values
+from uav_depth.core.disparity.near import near_params
+from uav_depth.core.disparity.window import window
 from uav_depth.core.errors import ConfigError, SourceError
+from uav_depth.core.params import StereoParams
 from uav_depth.sim.scene import Pose, Scene, SceneConfig, StereoFrame
 from uav_depth.daemon.sources.base import Frame
 
@@ -97,6 +108,20 @@ class Config:
         return Pose.forward(self.scene.branch_distance_m - self.scripted_distance(t_s))
 
 
+def pipeline_reads(params: StereoParams, width: int, height: int, near: bool = True) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1) px of a width x height pair that the flight pipeline reads with ``params``.
+
+    The union of the crops it matches (:func:`uav_depth.core.disparity.window.window`):
+    the main pass's (``compute.roi`` plus the search margin) and, with ``near``, the
+    near pass's (:func:`uav_depth.core.disparity.near.near_params`). Ranging reads only
+    the maps these produce, inside the ranging ROI.
+    """
+    crops = [window(params, width, height).crop]
+    if near:
+        crops.append(window(near_params(params), width, height).crop)
+    return (min(c[0] for c in crops), min(c[1] for c in crops), max(c[2] for c in crops), max(c[3] for c in crops))
+
+
 class SyntheticSource:
     """Live synthetic frames. See the module docstring.
 
@@ -119,6 +144,8 @@ class SyntheticSource:
         self.calibration = config.scene.calibration
         self._scene: Scene | None = None
         self._cache: tuple[bytes, StereoFrame] | None = None
+        self._pose_time: float | None = None
+        self.read_window: Callable[[], tuple[int, int, int, int] | None] | None = None
         self._t0 = 0.0
         self._next = 0
         self.renders = 0
@@ -150,12 +177,24 @@ class SyntheticSource:
         except Exception as exc:   # a broken provider is a lost camera, not a crashed daemon
             raise SourceError(f"synthetic: pose provider failed: {type(exc).__name__}: {exc}") from exc
 
-    def _render(self, pose: Pose, index: int) -> tuple[StereoFrame, bool]:
-        key = (np.asarray(pose.rotation, np.float64).tobytes() + np.asarray(pose.position, np.float64).tobytes())
+    def window(self) -> tuple[int, int, int, int] | None:
+        """The part of the image rendered now: ``read_window()`` grown to hold the truth ROI, or None (all)."""
+        want = self.read_window() if self.read_window is not None else None
+        if want is None:
+            return None
+        (x0, y0, x1, y1), (tx0, ty0, tx1, ty1) = want, self.truth_roi
+        sc = self.config.scene
+        win = (max(0, min(x0, tx0)), max(0, min(y0, ty0)), min(sc.width, max(x1, tx1)), min(sc.height, max(y1, ty1)))
+        return None if win == (0, 0, sc.width, sc.height) else win
+
+    def _render(self, pose: Pose, index: int, window: tuple[int, int, int, int] | None = None,
+                ) -> tuple[StereoFrame, bool]:
+        key = (np.asarray(pose.rotation, np.float64).tobytes() + np.asarray(pose.position, np.float64).tobytes()
+               + repr(window).encode())
         if self._cache is not None and self._cache[0] == key:
             return self._cache[1], False
         assert self._scene is not None
-        rendered = self._scene.render(pose, np.random.default_rng([self.config.scene.seed, index]))
+        rendered = self._scene.render(pose, np.random.default_rng([self.config.scene.seed, index]), window)
         self._cache = (key, rendered)
         self.renders += 1
         return rendered, True
@@ -173,13 +212,26 @@ class SyntheticSource:
         if wait > 0 and self._stop.wait(wait):
             return None
         t_pose = self.clock()
-        rendered, fresh = self._render(self._pose(t_pose - self._t0), index)
+        window = self.window()
+        rendered, fresh = self._render(self._pose(t_pose - self._t0), index, window)
         truth = rendered.nearest_branch_distance(self.truth_roi)
-        # A fresh render shows the pose sampled before rendering: the frame is that old.
-        t_capture = t_pose if fresh else self.clock()
+        # The frame shows the rig where the pose puts it: it is as old as that pose (a SITL pose
+        # carries the time the vehicle was there, ``pose_time``), however long the render took, and
+        # a pose already shown is no new frame. A scripted pose is sampled now; its cached pair (the
+        # rig at rest) is captured again now.
+        pose_time = getattr(self.pose_provider, "pose_time", None)
+        if pose_time is not None:
+            if pose_time == self._pose_time:
+                self._stop.wait(min(timeout_s, period))
+                return None
+            self._pose_time = pose_time
+            t_capture = min(t_pose, pose_time)
+        else:
+            t_capture = t_pose if fresh else self.clock()
         self._next = index + 1
         return Frame(left=rendered.left, right=rendered.right, index=index, t_capture=t_capture,
                      truth_m=None if math.isnan(truth) else truth, reference=rendered.disparity,
                      reference_source={"kind": "synthetic", "exact": True,
                                        "note": "ray-cast ground truth from uav_depth.sim.scene"},
-                     meta={"scene_seed": self.config.scene.seed, "rendered": fresh})
+                     meta={"scene_seed": self.config.scene.seed, "rendered": fresh,
+                           "window": None if window is None else list(window)})

@@ -54,6 +54,18 @@ def setup_logging(level: str) -> None:
                         format="%(levelname)s %(name)s: %(message)s")
 
 
+def exit_code(exc) -> int:
+    """The exit code (module docstring) for a failure of ``run``, ``run --check`` or ``sitl``: the one mapping."""
+    from uav_depth.cli.main import EXIT_CONFIG, EXIT_ERROR, EXIT_UNAVAILABLE
+    from uav_depth.core.errors import CalibrationError, ConfigError, DependencyError, FileFormatError, SourceError
+
+    if isinstance(exc, (ConfigError, CalibrationError, FileFormatError, DependencyError)):
+        return EXIT_CONFIG
+    if isinstance(exc, SourceError):
+        return EXIT_UNAVAILABLE
+    return EXIT_ERROR
+
+
 def error_line(command: str):
     """The one line a start-up or run failure prints: ``uav-depth run: error: ...``."""
     import sys
@@ -72,9 +84,7 @@ def serve(service, signals, command: str, cleanup=None) -> int:
     import os
     import sys
 
-    from uav_depth.cli.main import EXIT_CONFIG, EXIT_ERROR, EXIT_UNAVAILABLE
-    from uav_depth.core.errors import (CalibrationError, ConfigError, DependencyError, FileFormatError,
-                                         SourceError, UavDepthError)
+    from uav_depth.core.errors import UavDepthError
 
     err = error_line(command)
     stop = signals.stop
@@ -87,15 +97,9 @@ def serve(service, signals, command: str, cleanup=None) -> int:
     log_signals_installed(signals)
     try:
         report = service.run(stop)
-    except (ConfigError, CalibrationError, FileFormatError, DependencyError) as exc:
-        err(exc)
-        return EXIT_CONFIG
-    except SourceError as exc:
-        err(exc)
-        return EXIT_UNAVAILABLE
     except UavDepthError as exc:
         err(exc)
-        return EXIT_ERROR
+        return exit_code(exc)
     finally:
         if cleanup is not None:
             cleanup()
@@ -134,21 +138,15 @@ def log_signals_installed(signals) -> None:
 
 def check(config) -> int:
     """``run --check``: everything run would load (see uav_depth.daemon.preflight); run's exit codes."""
-    from uav_depth.cli.main import EXIT_CONFIG, EXIT_UNAVAILABLE
-    from uav_depth.core.errors import (CalibrationError, ConfigError, DependencyError, FileFormatError,
-                                         SourceError)
+    from uav_depth.core.errors import UavDepthError
     from uav_depth.daemon.preflight import preflight
     from uav_depth.daemon.sources import create_source
 
-    err = error_line("run --check")
     try:
         report = preflight(config, create_source(config.source))
-    except (ConfigError, CalibrationError, FileFormatError, DependencyError) as exc:
-        err(exc)
-        return EXIT_CONFIG
-    except SourceError as exc:
-        err(exc)
-        return EXIT_UNAVAILABLE
+    except UavDepthError as exc:
+        error_line("run --check")(exc)
+        return exit_code(exc)
     for line in report.checked:
         print(f"checked: {line}")
     for line in report.warnings:
@@ -162,18 +160,17 @@ def run(args: argparse.Namespace) -> int:
 
     signals = install_once()
 
-    from uav_depth.cli.main import EXIT_CONFIG
     from uav_depth.cli.sources import SOURCES
     from uav_depth.daemon.config import load_run_config
-    from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError
+    from uav_depth.core.errors import UavDepthError
 
     setup_logging(args.log_level)
     err = error_line("run --check" if args.check else "run")
     try:
         config = load_run_config(args.config, overrides_from_args(args), sources=SOURCES)
-    except (ConfigError, CalibrationError, FileFormatError) as exc:
+    except UavDepthError as exc:
         err(exc)
-        return EXIT_CONFIG
+        return exit_code(exc)
     if args.check:
         return check(config)
 
@@ -184,7 +181,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         service = Service(config)
-    except (ConfigError, CalibrationError, FileFormatError) as exc:
+    except UavDepthError as exc:
         err(exc)
-        return EXIT_CONFIG
+        return exit_code(exc)
     return serve(service, signals, "run")

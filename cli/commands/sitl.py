@@ -54,6 +54,10 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "made-up distances (never on a vehicle that flies)")
     g.add_argument("--listen-s", type=float, default=2.5, metavar="S",
                    help="with --scripted: listen this long for an autopilot's HEARTBEAT before flying (default 2.5)")
+    g.add_argument("--render", choices=("reads", "full"), default="reads",
+                   help="reads (default): ray-cast only the part of each frame the flight pipeline reads (its "
+                        "crops and the ranging ROI; the rest is black), whenever nothing else uses the frame "
+                        "(live view, OBSTACLE_DISTANCE, rig check and frame logging off); full: every pixel")
     g.add_argument("--truth-log", metavar="FILE",
                    help="CSV of every processed frame: pose, ground truth, measured distance "
                         "(default: sitl-<time>.csv in logging.dir, or in the current directory)")
@@ -176,6 +180,13 @@ def run(args: argparse.Namespace) -> int:
         link.close()
         err(exc)
         return EXIT_CONFIG
+    if args.render == "reads":
+        why_full = full_frame_users(config)
+        if why_full:
+            log.info("rendering whole frames: %s reads them", " and ".join(why_full))
+        else:
+            service.source.read_window = pipeline_window(service)
+            log.info("rendering only what the flight pipeline reads (--render full for every pixel)")
     path = Path(args.truth_log) if args.truth_log else \
         Path(config.logging.dir or ".") / time.strftime("sitl-%Y%m%d-%H%M%S.csv")
     truth = TruthLog(path, service, recorder, tree_ned=tracker.tree_ned() if recorder else None)
@@ -190,6 +201,37 @@ def run(args: argparse.Namespace) -> int:
         err(scripted_refusal(refused[0]))
         return EXIT_CONFIG
     return code
+
+
+def full_frame_users(config) -> list[str]:
+    """What in ``config`` reads whole frames (then every pixel is rendered)."""
+    return [name for name, on in (("the live view", config.liveview.enabled),
+                                  ("OBSTACLE_DISTANCE", config.obstacle_distance.enabled),
+                                  ("the rig check", config.rig_check.interval_s > 0),
+                                  ("frame logging", config.logging.dir is not None)) if on]
+
+
+def pipeline_window(service):
+    """``read_window`` for the synthetic source: what the service's current stage reads (None: all).
+
+    Taken afresh for each frame from the stage flying then, so a parameter reload
+    moves it; the one frame rendered just before a swap may lack pixels the new
+    stage reads (black: nothing SGBM can match, so no reading from them).
+    """
+    from uav_depth.sim.source import pipeline_reads
+
+    memo: dict[str, tuple[int, int, int, int]] = {}
+
+    def window():
+        stage, calib = service.stage, service.calibration
+        if stage is None or calib is None:
+            return None
+        if stage.hash not in memo:
+            memo.clear()
+            memo[stage.hash] = pipeline_reads(stage.params, calib.width, calib.height)
+        return memo[stage.hash]
+
+    return window
 
 
 def scripted_refusal(who: str):

@@ -1,5 +1,6 @@
 """MAVLink output against real pymavlink endpoints on loopback: fields, clock, subscriptions, signing, reconnects."""
 
+import math
 import os
 import socket
 import threading
@@ -80,10 +81,16 @@ def test_signal_quality_is_never_1():
     assert distance_report(estimate(quality=100), LIMITS, 10.0, 0.3).signal_quality == 100
 
 
-def test_covariance_is_never_zero_and_huge_spread_saturates():
+def test_covariance_is_never_zero_and_never_smaller_than_the_sigma():
     tiny = distance_report(estimate(sigma=1e-5), LIMITS, 10.0, 0.3, 0.0)
+    assert tiny.covariance == 1
+    # 254 cm^2 is the largest the uint8 field carries (15.9 cm); beyond, "unknown" (255), never a
+    # clipped 254 that would tell the autopilot the reading is more precise than it is.
+    at_cap = distance_report(estimate(sigma=math.sqrt(254) / 100), LIMITS, 10.0, 0.3, 0.0)
+    over = distance_report(estimate(sigma=0.16), LIMITS, 10.0, 0.3, 0.0)
     huge = distance_report(estimate(sigma=1.0), LIMITS, 10.0, 0.3, 0.0)
-    assert tiny.covariance == 1 and huge.covariance == 254
+    assert at_cap.covariance == 254 and over.covariance == 255 and huge.covariance == 255
+    assert over.valid and over.current_distance is not None    # the distance itself is what was measured
 
 
 def test_orientation_code_rejects_nonsense():
@@ -318,3 +325,12 @@ def test_bytes_the_kernel_holds_past_their_deadline_are_discarded_with_a_reset()
         pub.close()
         link.close()
         peer.close()
+
+
+def test_the_stated_range_ends_where_readings_stop_being_precise():
+    """max_distance is the nearer of the range and the precise range (ranging.max_sigma_m)."""
+    lim = RangeLimits(min_distance_m=0.345, max_distance_m=7.0, hfov_rad=0.6, vfov_rad=0.35, precise_max_m=2.4671)
+    r = distance_report(estimate(distance=2.0, limits=lim), lim, 10.0, 0.3, 0.0)
+    assert r.max_distance == 246 and r.valid
+    beyond = distance_report(estimate(distance=2.6, limits=lim), lim, 10.0, 0.3, 0.0)
+    assert not beyond.sent

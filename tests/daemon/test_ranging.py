@@ -308,3 +308,25 @@ def test_one_definition_of_the_default_roi_and_of_a_significant_object():
     for w, h in ((640, 360), (1280, 720), (1001, 503)):
         assert default_roi(w, h) == center_roi(w, h) == SceneConfig(width=w, height=h).center_roi
     assert RangingConfig().min_object_m2 == SIGNIFICANT_AREA_M2 == truth.SIGNIFICANT_AREA_M2
+
+
+def test_the_range_ends_where_the_sigma_floor_passes_what_the_wire_carries():
+    """By default a reading is never less precise than DISTANCE_SENSOR's covariance can say (15.9 cm)."""
+    from uav_depth.daemon.ranging import PIXEL_LOCKING_SIGMA_PX, WIRE_SIGMA_MAX_M
+
+    fb = 350.0 * 0.063
+    for params, px in ((PARAMS, 1.0), (PARAMS.replace(**{"compute.scale": 0.5}), 2.0)):
+        r = ranger(RangingConfig(max_distance_m=10.0), params=params)
+        z_max = math.sqrt(WIRE_SIGMA_MAX_M * fb / (PIXEL_LOCKING_SIGMA_PX * px))   # 3.49 m, 2.47 m
+        assert r.limits.precise_max_m == pytest.approx(z_max) and r.limits.stated_max_m == pytest.approx(z_max)
+        assert r.limits.max_distance_m == pytest.approx(10.0)       # OBSTACLE_DISTANCE's range stays
+        inside = r.measure(_result(np.full((360, 640), fb / (0.97 * z_max), np.float32)))
+        beyond = r.measure(_result(np.full((360, 640), fb / (1.03 * z_max), np.float32)))
+        assert inside.valid and inside.sigma_m <= WIRE_SIGMA_MAX_M
+        assert not beyond.valid
+    # A spread wider than the floor: the reading's own sigma passes the limit nearer than that.
+    rng = np.random.default_rng(0)
+    d = (fb / 2.0 + rng.normal(0, 2.0, (360, 640))).astype(np.float32)     # 2 m, spread 2 px: sigma ~0.36 m
+    m = ranger(RangingConfig(cluster_depth_m=1.0, surface_quantile=0.5)).measure(_result(d))
+    assert not m.valid and "above max_sigma_m" in m.reason
+    assert ranger(RangingConfig(cluster_depth_m=1.0, surface_quantile=0.5, max_sigma_m=1.0)).measure(_result(d)).valid

@@ -83,7 +83,7 @@ def test_culled_render_equals_full_frame_cast(monkeypatch, pose):
     """Bounding-volume culling must never drop a hit: same pixels as casting every ray at every cylinder."""
     cfg = SceneConfig(width=320, height=240, focal_px=200.0, branch_distance_m=1.0, n_branches=6, color=True, seed=9)
     fast = Scene(cfg).render(pose, np.random.default_rng(3))
-    monkeypatch.setattr(Scene, "_candidates", lambda self, cyl, o, rot: None)
+    monkeypatch.setattr(Scene, "_candidates", lambda self, cyl, o, rot, view: None)
     full = Scene(cfg).render(pose, np.random.default_rng(3))
     assert fast.branch_mask.any()
     for name in ("left", "right", "labels"):
@@ -295,7 +295,7 @@ def test_culled_leafy_render_equals_full_frame_cast(monkeypatch):
     """Twigs, small branches, sky and shadows go through the same culling: it must drop no hit."""
     cfg = SceneConfig.leafy(seed=6, width=320, height=180, focal_px=175.0, branch_distance_m=0.7, fascicles=0)
     fast = Scene(cfg).render(rng=np.random.default_rng(1))
-    monkeypatch.setattr(Scene, "_candidates", lambda self, cyl, o, rot: None)
+    monkeypatch.setattr(Scene, "_candidates", lambda self, cyl, o, rot, view: None)
     full = Scene(cfg).render(rng=np.random.default_rng(1))
     assert (fast.labels == 3).sum() > 50
     for name in ("left", "right", "labels", "objects", "depth"):
