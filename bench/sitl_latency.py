@@ -1,7 +1,7 @@
 """Where a SITL frame's time goes: render, rectify, stereo, ranging, with the laptop config (in process).
 
 The config of ``uav-depth sitl`` on a laptop (deploy/examples/sitl.yaml, its flight parameters for
-640x360) on the scene it renders, the rig hovering a few metres from the branch with a small attitude
+640x360) on the scene it renders, the rig hovering 2 m (``--distance``) from the branch with a small attitude
 jitter every frame (as an autopilot's pose has, so nothing is cached between frames). Full renders and
 renders of only what the flight pipeline reads (``--render reads``, the default of ``uav-depth sitl``)
 alternate frame by frame, so both see the same load. Numbers, not assertions:
@@ -41,7 +41,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--config", default=str(REPO / "deploy/examples/sitl.yaml"))
     ap.add_argument("--frames", type=int, default=40, help="frames per mode")
-    ap.add_argument("--distance", type=float, default=3.0, help="rig to branch surface, m")
+    ap.add_argument("--distance", type=float, default=2.0, help="rig to branch surface, m")
     args = ap.parse_args()
     config = load_run_config(args.config, sources=SOURCES)
     sc = config.source.scene

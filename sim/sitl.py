@@ -170,7 +170,7 @@ class SitlConfig:
     approach_yaw_deg: float | None = None
     camera_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     camera_pitch_deg: float = 0.0
-    pose_rate_hz: float = 30.0
+    pose_rate_hz: float = 50.0
     pose_timeout_s: float = 1.0
 
     def __post_init__(self) -> None:

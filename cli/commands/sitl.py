@@ -38,8 +38,9 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="camera position on the vehicle, body frame forward/right/down, m (default 0 0 0)")
     g.add_argument("--camera-pitch-deg", type=float, default=0.0, metavar="DEG",
                    help="camera tilt above the vehicle's forward axis, degrees (default 0)")
-    g.add_argument("--pose-rate-hz", type=float, default=30.0, metavar="HZ",
-                   help="rate requested for LOCAL_POSITION_NED and ATTITUDE (default 30)")
+    g.add_argument("--pose-rate-hz", type=float, default=50.0, metavar="HZ",
+                   help="rate requested for LOCAL_POSITION_NED and ATTITUDE (default 50: a frame's pose is at most "
+                        "20 ms old when its render starts)")
     g.add_argument("--pose-timeout-s", type=float, default=1.0, metavar="S",
                    help="an autopilot pose older than this is not rendered: no measurement is sent (default 1)")
     g.add_argument("--wait-s", type=float, default=0.0, metavar="S",

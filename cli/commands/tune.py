@@ -82,6 +82,10 @@ def rejected_path(out: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from uav_depth.cli.progress import Counted, Progress
+
+    terminal = Progress(enabled=False if args.no_progress else None)   # the phases outside the bar
+    terminal.phase("loading the tuner")     # its imports take seconds on a small machine
     import datetime
     import math
     import signal
@@ -120,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
     fitness = FITNESS[metric]
     # Reports: the paper's fitnesses are reported in the paper's convention, every other one as benchmarks do.
     convention = "paper" if metric in PAPER_FITNESS else "bench"
+    terminal.phase(f"loading the frames of {args.logdir}")
     base = load_params(args.base) if args.base else DEFAULT_PARAMS
     k = parse_folds(args.folds, len(find_sessions(args.logdir)), args.holdout)
     folds = load_folds(args.logdir, k, fitness.needs) if k > 1 else [load_split(args.logdir, args.holdout,
@@ -169,6 +174,7 @@ def run(args: argparse.Namespace) -> int:
                         study, result = study_j, result_j
                     results.append(result_j)
                     if args.max_ms is not None:
+                        terminal.phase(f"re-timing the search front under --max-ms {args.max_ms:g}")
                         choice = choose_under_budget(st, metric, tr, args.max_ms)
                         if j == 0:
                             budget = {"max_ms": args.max_ms, "front": choice.front,
@@ -178,12 +184,18 @@ def run(args: argparse.Namespace) -> int:
                         candidates = [] if choice.params is None else [(choice.params.to_dict(), choice.value)]
                     else:
                         candidates = top_candidates(st, metric)
-                    selections.append(select(executor, metric, base, result_j.baseline.value, candidates,
-                                             bool(len(ho)), train_set=tn, holdout_set=hn, nudge_keys=tuned_keys))
+                    fold = f" (fold {j + 1} of {k})" if k > 1 else ""
+                    terminal.phase(f"choosing among the best candidates on the {len(ho)} held-out frame(s){fold}"
+                                   if len(ho) else "choosing among the best candidates on the training frames")
+                    selections.append(select(Counted(executor, terminal, "candidates scored"), metric, base,
+                                             result_j.baseline.value, candidates, bool(len(ho)), train_set=tn,
+                                             holdout_set=hn, nudge_keys=tuned_keys))
                 bar.close()
                 cross = None
                 if k > 1:
-                    cross = cross_select(executor, metric, base, selections, [hn for _, hn in set_names])
+                    terminal.phase(f"scoring the {k} fold winners on every fold's held-out sessions")
+                    cross = cross_select(Counted(executor, terminal, "candidates scored"), metric, base, selections,
+                                         [hn for _, hn in set_names])
                     rows = [{"params": base.to_dict(), "train": result.baseline.value, "holdout": cross.cv_base,
                              "fragile": None}]
                     rows += [{"params": p["params"], "train": selections[p["fold"]].chosen["train"],
@@ -199,7 +211,9 @@ def run(args: argparse.Namespace) -> int:
                 chosen_value = selection.chosen["train"]
                 front = search_front(store, metric)
                 names = [n for n in ("train", "holdout") if len(framesets[n])]
-                scores = full_scores(executor, [base, chosen], names, convention)
+                terminal.phase("scoring the base and the chosen parameters with every metric on "
+                               + " and ".join(names))
+                scores = full_scores(Counted(executor, terminal, "scored"), [base, chosen], names, convention)
             finally:
                 executor.close()
     except TuneInterrupted as exc:
@@ -283,6 +297,7 @@ def run(args: argparse.Namespace) -> int:
                     "space": describe_space(study.space), "base": base.to_dict(), "out": args.out,
                     "opencv": cv2.__version__, "version": __version__}
         points = [(ev.ms, ev.value) for _, p, ev in store.evaluations() if ev.ok and math.isfinite(ev.ms)]
+        terminal.phase(f"writing the report and its plots into {args.report}")
         write_report(args.report, summary, resolved, [framesets[n] for n in names], base, chosen, points)
         print(f"wrote report {args.report}")
     for st in stores:

@@ -11,8 +11,8 @@ which CI runs.
 The flight, in the order the autopilot needs (docs/sitl.md): start SITL; set RNGFND1_TYPE=10 /
 PRX1_TYPE=2 and the avoidance settings; reboot; set RNGFND1_ORIENT=0, RNGFND1_MIN/MAX (m); start
 ``uav-depth sitl`` (before arming: arming fails without data); arm in Guided; take off to 3 m; fly
-north at the branch (its nearest surface at N ``TREE_N``) at each speed; record the closest
-approach (from LOCAL_POSITION_NED: TREE_N - north) and the autopilot's own DISTANCE_SENSOR against
+north at the branch (its nearest surface at N ``TREE_N``) at each speed, in Guided (velocity) and
+Loiter (full stick at LOIT_SPEED, RC override); record the closest approach (from LOCAL_POSITION_NED: TREE_N - north) and the autopilot's own DISTANCE_SENSOR against
 that geometry. :class:`Sitl` and :func:`approach` are also what bench/sitl_ardupilot.py flies.
 """
 
@@ -418,7 +418,7 @@ def test_avoidance_stops_the_approach_on_the_daemons_readings(tmp_path):
         sitl.arm(force=True)
         time.sleep(2.0)
         sitl.takeoff(ALT_M)
-        results = [approach(sitl, "Guided", v) for v in (0.5, 1.0, 2.0)]
+        results = [approach(sitl, mode, v) for mode in ("Guided", "Loiter") for v in (0.5, 1.0, 2.0)]
     finally:
         stop(daemon)
         sitl.close()
