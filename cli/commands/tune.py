@@ -169,6 +169,8 @@ def run(args: argparse.Namespace) -> int:
                                     frameset=tn)
                     study_j.open(args.resume)
                     result_j = study_j.run()
+                    if j == k - 1:
+                        bar.close()               # the phases after the last search print below the bar
                     result_j.best_params()        # raises when every candidate failed
                     if j == 0:
                         study, result = study_j, result_j
@@ -190,7 +192,6 @@ def run(args: argparse.Namespace) -> int:
                     selections.append(select(Counted(executor, terminal, "candidates scored"), metric, base,
                                              result_j.baseline.value, candidates, bool(len(ho)), train_set=tn,
                                              holdout_set=hn, nudge_keys=tuned_keys))
-                bar.close()
                 cross = None
                 if k > 1:
                     terminal.phase(f"scoring the {k} fold winners on every fold's held-out sessions")
