@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from scenebench import Measurer, fmt_pct, param_sets, rel_err, render_cached
+from scenebench import PARAM_SET_NAMES, Measurer, fmt_pct, param_sets, rel_err, render_cached
 
 from uav_depth.cli.benchmark import machine_line
 from uav_depth.sim.scene import SceneConfig, vary
@@ -94,7 +94,7 @@ def format_table(summary: list[dict[str, Any]]) -> str:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", type=int, default=30)
-    ap.add_argument("--params", nargs="+", default=["baseline", "flight"], choices=("baseline", "flight"))
+    ap.add_argument("--params", nargs="+", default=["baseline", "flight"], choices=PARAM_SET_NAMES)
     ap.add_argument("--no-cache", action="store_true")
     ap.add_argument("--json", action="store_true", help="print rows and summary as JSON instead of the table")
     ap.add_argument("--per-scene", action="store_true", help="also print one line per scene")

@@ -36,7 +36,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from scenebench import Measurer, fmt_pct, flight_max_range_m, param_sets, rel_err, render_cached
+from scenebench import PARAM_SET_NAMES, Measurer, fmt_pct, flight_max_range_m, param_sets, rel_err, render_cached
 
 from uav_depth.cli.benchmark import machine_line
 from uav_depth.sim.scene import SceneConfig, vary
@@ -139,7 +139,7 @@ def main(argv=None) -> None:
     ap.add_argument("--step-m", type=float, default=0.01)
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
-    ap.add_argument("--params", nargs="+", default=["baseline", "flight"], choices=("baseline", "flight"))
+    ap.add_argument("--params", nargs="+", default=["baseline", "flight"], choices=PARAM_SET_NAMES)
     ap.add_argument("--no-cache", action="store_true")
     ap.add_argument("--json", action="store_true", help="print rows and summary as JSON instead of the table")
     ap.add_argument("--per-distance", action="store_true", help="also print one line per distance")

@@ -40,7 +40,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from scenebench import ROOT, fmt_pct, param_sets
+from scenebench import PARAM_SET_NAMES, ROOT, fmt_pct, param_sets
 
 from uav_depth.cli.benchmark import machine_line
 from uav_depth.core.calibration import Calibration
@@ -139,7 +139,7 @@ def format_report(rows, summary) -> str:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA, help="folder of the 17 scene folders")
-    ap.add_argument("--params", nargs="+", default=["baseline", "flight"], choices=("baseline", "flight"))
+    ap.add_argument("--params", nargs="+", default=["baseline", "flight"], choices=PARAM_SET_NAMES)
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     if not (args.data / SCENES[0] / "disp1.png").is_file():

@@ -32,9 +32,16 @@ FLIGHT_FILE = ROOT / "deploy" / "params-flight.yaml"
 CACHE_DIR = Path(os.environ.get("UAV_DEPTH_SCENE_CACHE", "/tmp/uav-depth-scene-cache"))
 
 
+#: Parameter sets a benchmark can name: the two that fly, and the flight file without / with its fine pass.
+PARAM_SET_NAMES = ("baseline", "flight", "flight-coarse", "flight-fine")
+
+
 def param_sets(names=("baseline", "flight")) -> dict[str, StereoParams]:
-    """The manual baseline (core.params DEFAULT_PARAMS) and deploy/params-flight.yaml."""
-    sets = {"baseline": lambda: DEFAULT_PARAMS, "flight": lambda: load_params(FLIGHT_FILE)}
+    """The manual baseline (core.params DEFAULT_PARAMS), deploy/params-flight.yaml, and that file with the
+    fine pass off (``flight-coarse``) or on at 32 disparities (``flight-fine``)."""
+    sets = {"baseline": lambda: DEFAULT_PARAMS, "flight": lambda: load_params(FLIGHT_FILE),
+            "flight-coarse": lambda: load_params(FLIGHT_FILE).replace(**{"compute.fine_disparities": 0}),
+            "flight-fine": lambda: load_params(FLIGHT_FILE).replace(**{"compute.fine_disparities": 32})}
     return {n: sets[n]() for n in names}
 
 

@@ -24,6 +24,7 @@ from typing import Any, Callable, Sequence
 import cv2
 import numpy as np
 
+from uav_depth.cli.progress import QUIET, Progress
 from uav_depth.core.disparity import DisparityPipeline, DisparityResult, flight_pipeline
 from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, disparity_search_range
 from uav_depth.sim.scene import Scene, SceneConfig, background_period_px, vary
@@ -63,6 +64,7 @@ class Variant:
     threads: int | None = None
     note: str = ""
     flies: bool = False
+    smooth: bool = True     # not flies: run the WLS smoothing (False: the WLS lever alone, no near check)
 
 
 @dataclass
@@ -144,7 +146,8 @@ MIN_BACKGROUND_PERIOD = 200 / 1280
 
 
 def make_frames(n: int = 12, width: int = 1280, height: int = 720, seed: int = 0,
-                distances_m: tuple[float, float] = (0.5, 2.0), color: bool = True) -> list[BenchFrame]:
+                distances_m: tuple[float, float] = (0.5, 2.0), color: bool = True,
+                progress: Callable[[int, int], None] | None = None) -> list[BenchFrame]:
     """``n`` varied scenes with the branch at evenly spaced distances; colour as a camera gives it.
 
     The focal length follows the width (700 px at 1280, ZED Mini-like), so every
@@ -152,6 +155,7 @@ def make_frames(n: int = 12, width: int = 1280, height: int = 720, seed: int = 0
     repeat inside the search range (see :func:`scene.background_period_px`) gets
     its background moved nearer, so a false match one tile away cannot pass for
     the branch: the benchmark judges the pipeline, not the renderer's tiling.
+    ``progress(done, n)`` after each pair.
     """
     rng = np.random.default_rng(seed)
     base = SceneConfig(width=width, height=height, focal_px=700.0 * width / 1280.0, color=color)
@@ -167,6 +171,8 @@ def make_frames(n: int = 12, width: int = 1280, height: int = 720, seed: int = 0
         frame = Scene(cfg).render(rng=rng)
         out.append(BenchFrame(frame.left, frame.right, frame.nearest_branch_distance(cfg.center_roi), float(d), cfg,
                               frame.disparity))
+        if progress is not None:
+            progress(len(out), n)
     return out
 
 
@@ -245,14 +251,17 @@ def ranging_floor(frames: Sequence[BenchFrame], max_distance_m: float = 2.0) -> 
             "per_frame_estimate_m": ests}
 
 
-def run(frames: Sequence[BenchFrame], variants: Sequence[Variant],
-        progress: Callable[[str], None] | None = None) -> dict[str, Any]:
-    """Time every variant on every frame, interleaved; return the summary (see :meth:`VariantResult.summary`)."""
+def run(frames: Sequence[BenchFrame], variants: Sequence[Variant], progress: Progress = QUIET) -> dict[str, Any]:
+    """Time every variant on every frame, interleaved; return the summary (see :meth:`VariantResult.summary`).
+
+    ``progress``: a step line per frame timed (every variant of the round on it) on a terminal."""
     make_ranger = _ranger_factory()
-    pipes = {v.name: flight_pipeline(v.params) if v.flies else DisparityPipeline(v.params) for v in variants}
+    pipes = {v.name: flight_pipeline(v.params) if v.flies else DisparityPipeline(v.params, refine=v.smooth)
+             for v in variants}
     results = {v.name: VariantResult(v) for v in variants}
     default_threads = cv2.getNumThreads()
     n_rounds = max(v.rounds for v in variants)
+    progress.phase(f"timing {len(variants)} pipelines interleaved, {n_rounds} round(s) over {len(frames)} frames")
     for rnd in range(n_rounds):
         # Rotate the order each round: no variant always runs right after a slow one.
         order = [v for v in variants if rnd < v.rounds]
@@ -275,8 +284,8 @@ def run(frames: Sequence[BenchFrame], variants: Sequence[Variant],
                     r.stages_ms.setdefault(k, []).append(ms)
                 if rnd == 0:
                     r.estimates_m.append(est)
-        if progress:
-            progress(f"round {rnd + 1}/{n_rounds} done")
+            progress.step(f"round {rnd + 1}/{n_rounds}, frames timed", rnd * len(frames) + i + 1,
+                          n_rounds * len(frames))
     naive = results.get("naive")
     naive_med = float(np.median(naive.total_ms)) if naive is not None else None
     floor = ranging_floor(frames)
@@ -286,15 +295,16 @@ def run(frames: Sequence[BenchFrame], variants: Sequence[Variant],
 
 def bench(flight: StereoParams, frames: int = 12, rounds: int = 20, naive_rounds: int = 2, width: int = 1280,
           height: int = 720, seed: int = 0, levers: bool = False, threads: int | None = None,
-          progress: Callable[[str], None] | None = None) -> dict[str, Any]:
-    """The whole benchmark: render, time naive vs flight (or the lever ladder), report with the machine."""
+          progress: Progress = QUIET) -> dict[str, Any]:
+    """The whole benchmark: render, time naive vs flight (or the lever ladder), report with the machine.
+
+    ``progress``: phase and step lines on a terminal (:mod:`uav_depth.cli.progress`)."""
     if threads is not None:
         cv2.setNumThreads(threads)
+    progress.phase(f"rendering {frames} synthetic pairs {width}x{height}")
     t0 = time.perf_counter()
-    fr = make_frames(frames, width, height, seed)
+    fr = make_frames(frames, width, height, seed, progress=progress.counter("rendered"))
     render_s = time.perf_counter() - t0
-    if progress:
-        progress(f"rendered {frames} pairs {width}x{height} in {render_s:.1f} s")
     if levers:
         variants = lever_variants(flight, rounds, naive_rounds)
     else:
@@ -302,6 +312,8 @@ def bench(flight: StereoParams, frames: int = 12, rounds: int = 20, naive_rounds
                             note="OpenCV sample: full frame, colour, SGBM+right+WLS"),
                     Variant("flight+WLS", flight, rounds, note="the flight file with WLS smoothing, no near check "
                             "(how it flew before)"),
+                    Variant("flight-noSmooth", flight, rounds, smooth=False,
+                            note="flight+WLS without the WLS smoothing (the smoothing's saving alone, no near check)"),
                     Variant("flight", flight, rounds, flies=True,
                             note="the flight parameter file as it flies: no WLS smoothing, near check")]
     out = run(fr, variants, progress)
@@ -313,19 +325,21 @@ def bench(flight: StereoParams, frames: int = 12, rounds: int = 20, naive_rounds
 
 
 def flight_params(focal_px: float = 700.0, baseline_m: float = 0.063, scale: float = 0.5,
-                  block_size: int = 3) -> StereoParams:
+                  block_size: int = 3, fine_disparities: int = 32) -> StereoParams:
     """The recommended flight settings for a camera (ZED Mini at 1280x720 by default).
 
     Centre third plus the search margin, half resolution, grey, SGBM 3-way, WLS
     at the matched resolution, the disparity range of the 0.3..3 m working
-    distance, P1/P2 by OpenCV's rule for one channel. ``deploy/params-flight.yaml``
+    distance, P1/P2 by OpenCV's rule for one channel, and the ranged object re-matched at full
+    resolution over ``fine_disparities`` (docs/ranging.md). ``deploy/params-flight.yaml``
     is this for the defaults.
     """
     min_d, num_d = disparity_search_range(focal_px, baseline_m, WORKING_NEAR_M, scale=scale)
     return DEFAULT_PARAMS.replace(**{
         "sgbm.mode": "sgbm_3way", "sgbm.min_disparity": min_d, "sgbm.num_disparities": num_d,
         "sgbm.block_size": block_size, "sgbm.p1": 8 * block_size ** 2, "sgbm.p2": 32 * block_size ** 2,
-        "compute.roi": list(FLIGHT_ROI), "compute.scale": scale, "compute.grey": True, "compute.wls_at": "matched"})
+        "compute.roi": list(FLIGHT_ROI), "compute.scale": scale, "compute.grey": True, "compute.wls_at": "matched",
+        "compute.fine_disparities": fine_disparities})
 
 
 def format_report(out: dict[str, Any]) -> str:

@@ -87,6 +87,8 @@ class Spec:
             raise ConfigError(key, "must be odd", value, source)
         if self.rule == "multiple_of_16" and value % 16 != 0:
             raise ConfigError(key, "must be a positive multiple of 16", value, source)
+        if self.rule == "zero_or_multiple_of_16" and value % 16 != 0:
+            raise ConfigError(key, "must be 0 (off) or a multiple of 16", value, source)
         if self.rule == "positive" and not value > 0:
             raise ConfigError(key, "must be greater than 0", value, source)
         return value
@@ -143,6 +145,10 @@ SPECS: tuple[Spec, ...] = (
     Spec("compute", "wls_at", str, "input",
          "with scale < 1: WLS filters at the input resolution with the full-resolution guide, or at the "
          "matched resolution and is resized", choices=("input", "matched")),
+    Spec("compute", "fine_disparities", int, 0,
+         "with scale < 1: re-match the ranged object's box at full resolution over this many disparities "
+         "just below and above its coarse disparity, and range on that (docs/ranging.md); 0: off", 0, 256,
+         "zero_or_multiple_of_16"),
 )
 
 SPEC_BY_KEY: dict[str, Spec] = {s.key: s for s in SPECS}
@@ -192,6 +198,7 @@ class ComputeParams:
     scale: float = 1.0
     grey: bool = False
     wls_at: str = "input"
+    fine_disparities: int = 0
 
     @property
     def whole_frame(self) -> bool:

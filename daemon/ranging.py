@@ -16,10 +16,19 @@ disparity (docs/ranging.md says why each rule and threshold is what it is):
    deviation, at least 1/sqrt(12) matched px (SGBM's pixel locking).
 
 Z = f*B/d and sigma_Z = Z^2/(f*B) * sigma_d. A reading below ``min_quality`` is no
-measurement. An object nearer than the minimum range (the near check sees it
-beyond the search, or the object piles at the search's end) is *too close*: no
-distance, never a farther one. :class:`OutlierGate` lets a nearer reading through
+measurement. With a fine pass (``compute.fine_disparities``) the object's box is
+re-matched at full resolution and ranged again by the same rules; the fine reading
+replaces the coarse one when it is nearer, or farther only within half a coarse pixel
+and at least as tight (``Ranger._refine``): never farther than the coarse pass saw on
+a fine match that does not hold up.
+
+An object nearer than the minimum range (the near check sees it beyond the search,
+or the object piles at the search's end) is *too close*: no distance, never a
+farther one. :class:`OutlierGate` lets a nearer reading through
 at once and holds a jump away until ``confirm_frames`` frames agree.
+
+Longer than 400 lines because the ranging rules (object, fine pass, too close), the
+outlier gate and the records they share are one safety argument, read together.
 """
 
 from __future__ import annotations
@@ -54,6 +63,20 @@ NEAR_BEYOND_SHARE = 0.15
 #: A frame that measures (almost) nothing right after a too-close one is still too close: the object
 #: that was nearer than the minimum range now fills the view, texture-less (docs/ranging.md).
 BLANK_VALID_FRACTION = 0.1
+#: The fine pass (``compute.fine_disparities``) searches from this share of its range below the coarse
+#: disparity: most of it above, where a coarse reading that was too far (the unsafe error) finds its object.
+FINE_BELOW_REL = 0.25
+#: The fine object's band is widened by this much for matching noise, input px (the coarse pass: one
+#: matched px). Full-resolution SGBM is good to a few tenths of a pixel; at 5 m and f*B = 22 px*m one
+#: pixel is a metre of depth, and a wider band takes in the trunk behind the branch.
+FINE_MARGIN_PX = 0.5
+#: A fine reading farther than the coarse one replaces it only within this many coarse matched px: half a
+#: pixel, the coarse pass's own rounding (a whole one let a leafy frame at 2.3 m read 1.2 px, 6 %, farther).
+FINE_FARTHER_PX = 0.5
+#: The fine pass matches at most this many input columns and rows (plus its search margins), around the
+#: pixels that decide the reading: its cost stays bounded whatever the object's size (docs/ranging.md).
+FINE_MAX_COLS = 160
+FINE_MAX_ROWS = 96
 
 
 @dataclass(frozen=True)
@@ -114,7 +137,8 @@ class Measurement:
     the image; ``disparity_px``/``sigma_px``: the object's disparity and spread;
     ``n_px``: its pixel count; ``valid_fraction``: measured confident pixels / ROI area;
     ``too_close``: an object is nearer than the minimum range (``distance_m`` is then
-    None: no distance was measured, but the obstacle is nearer than ``min_distance_m``).
+    None: no distance was measured, but the obstacle is nearer than ``min_distance_m``);
+    ``refined``: the distance, sigma, box and disparity come from the fine pass.
     """
 
     distance_m: float | None
@@ -127,6 +151,7 @@ class Measurement:
     valid_fraction: float = 0.0
     reason: str | None = None
     too_close: bool = False
+    refined: bool = False
 
     @property
     def valid(self) -> bool:
@@ -164,15 +189,19 @@ def resolve_roi(roi: tuple[int, int, int, int] | None, width: int, height: int) 
     return roi
 
 
-def _weighted_quantile(values: np.ndarray, weights: np.ndarray, q: float) -> float:
-    order = np.argsort(values, kind="stable")
+def _weighted_quantiles(values: np.ndarray, weights: np.ndarray, *qs: float) -> list[float]:
+    """The values that leave a share q of the weight below them, for each q (one sort).
+
+    Tied values may be ordered either way: the value where the cumulative weight crosses
+    q is the same, so the sort need not be stable (it is about twice as fast)."""
+    order = np.argsort(values)
     v, w = values[order], weights[order]
     cum = np.cumsum(w, dtype=np.float64)
-    return float(v[min(int(np.searchsorted(cum, q * cum[-1])), v.size - 1)])
+    return [float(v[min(int(np.searchsorted(cum, q * cum[-1])), v.size - 1)]) for q in qs]
 
 
 def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
-    return _weighted_quantile(values, weights, 0.5)
+    return _weighted_quantiles(values, weights, 0.5)[0]
 
 
 class Ranger:
@@ -198,8 +227,10 @@ class Ranger:
                               sg.num_disparities)
         # Farther than max_distance_m (or than the smallest searched disparity) is "no measurement".
         self.d_floor = max(self.fb / config.max_distance_m, sg.min_disparity * self.px, 1.0 / 16.0)
-        # DISTANCE_SENSOR's range ends where sigma_z = z^2 / fb * sigma_d passes max_sigma_m at the floor.
-        self.sigma_floor_px = PIXEL_LOCKING_SIGMA_PX * self.px
+        # DISTANCE_SENSOR's range ends where sigma_z = z^2 / fb * sigma_d passes max_sigma_m at the floor:
+        # the fine pass's (full resolution) when it runs, the coarse pass's otherwise.
+        fine = params.compute.fine_disparities > 0 and params.compute.scale < 1.0
+        self.sigma_floor_px = PIXEL_LOCKING_SIGMA_PX * (1.0 if fine else self.px)
         self.d_precise = math.sqrt(self.fb * self.sigma_floor_px / config.max_sigma_m)
         self.limits = RangeLimits(min_distance_m=self.fb / d_max, max_distance_m=self.fb / self.d_floor,
                                   precise_max_m=self.fb / self.d_precise,
@@ -213,31 +244,69 @@ class Ranger:
         cfg = self.config
         x0, y0, x1, y1 = self.roi
         disp = result.measured[y0:y1, x0:x1]
-        area = disp.size
-        with np.errstate(invalid="ignore"):     # NaN compares False: unmatched pixels drop out
-            ok = disp >= self.d_floor
-            conf = None
-            if result.confidence is not None:
-                conf = result.confidence[y0:y1, x0:x1]
-                ok &= conf >= cfg.min_confidence
-        vals = disp[ok]
-        n_valid = vals.size
-        valid_fraction = n_valid / area
+        conf = None if result.confidence is None else result.confidence[y0:y1, x0:x1]
+        ok = self._usable(disp, conf)
+        n_valid = int(ok.sum())
+        valid_fraction = n_valid / disp.size
         near = self._too_close(result)
         if near is not None:
             return Measurement(None, n_px=n_valid, valid_fraction=valid_fraction, reason=near, too_close=True)
-        front = self._front(vals)
-        if front is None:
+        obj = self._object(disp, conf, ok, self.px)
+        if obj is None:
             return Measurement(None, n_px=n_valid, valid_fraction=valid_fraction,
                                reason=f"no object of {cfg.min_valid_px} matched pixels and "
                                       f"{cfg.min_object_m2 * 1e4:g} cm^2 among the {n_valid} confident "
                                       f"measured pixels in the ROI")
-        margin = CLUSTER_MARGIN_PX * self.px
-        if front >= self.d_max - margin:
+        if obj.front >= self.d_max - CLUSTER_MARGIN_PX * self.px:
             # The object piles at the end of the search: it may be nearer than SGBM can tell.
             return Measurement(None, n_px=n_valid, valid_fraction=valid_fraction, too_close=True,
-                               reason=f"the nearest object's disparity {front:.1f} px is at the search's end "
+                               reason=f"the nearest object's disparity {obj.front:.1f} px is at the search's end "
                                       f"{self.d_max:.1f} px: nearer than {self.limits.min_distance_m:.3f} m")
+        quality = int(min(100, max(2, round(100.0 * valid_fraction * obj.mean_conf))))
+        bbox = _shift(obj.bbox, x0, y0)
+        if quality < cfg.min_quality:
+            return Measurement(None, quality=quality, bbox=bbox, disparity_px=obj.d, sigma_px=obj.sigma_d,
+                               n_px=obj.n, valid_fraction=valid_fraction,
+                               reason=f"signal quality {quality} below min_quality {cfg.min_quality} "
+                                      f"(the object would read {self.fb / obj.d:.3f} m)")
+        m = self._reading(obj, bbox, quality, valid_fraction)
+        if result.fine is not None:
+            m = self._refine(m, obj, result, disp, ok)
+        # Decided on the reading that would go out (the fine one when it stands): it is the one sent.
+        if m.sigma_m > cfg.max_sigma_m:
+            return replace(m, distance_m=None, sigma_m=None, refined=False,
+                           reason=f"sigma {m.sigma_m:.3f} m above max_sigma_m {cfg.max_sigma_m:.3f} m "
+                                  f"(the object would read {m.distance_m:.3f} m)")
+        return m
+
+    def _reading(self, obj: "_Object", bbox: tuple[int, int, int, int], quality: int, valid_fraction: float,
+                 refined: bool = False) -> Measurement:
+        z = self.fb / obj.d
+        return Measurement(distance_m=z, sigma_m=z * z / self.fb * obj.sigma_d, quality=quality, bbox=bbox,
+                           disparity_px=obj.d, sigma_px=obj.sigma_d, n_px=obj.n, valid_fraction=valid_fraction,
+                           refined=refined)
+
+    def _usable(self, disp: np.ndarray, conf: np.ndarray | None) -> np.ndarray:
+        """Measured pixels above the far floor and (with a confidence map) confident enough."""
+        with np.errstate(invalid="ignore"):     # NaN compares False: unmatched pixels drop out
+            ok = disp >= self.d_floor
+            if conf is not None:
+                ok &= conf >= self.config.min_confidence
+        return ok
+
+    def _object(self, disp: np.ndarray, conf: np.ndarray | None, ok: np.ndarray, px: float,
+                count_px: float | None = None, margin_px: float | None = None) -> "_Object | None":
+        """The nearest significant object among the ``ok`` pixels of a map matched at ``px`` input px per
+        matched px (rules 1-3 of the module docstring); None if there is none. ``count_px``: the matched
+        pixel ``min_valid_px`` counts, input px across (default ``px``; the fine pass counts the coarse
+        pass's, so that its object covers the same image area); ``margin_px``: the band's widening for
+        matching noise, input px (default one matched pixel)."""
+        cfg = self.config
+        vals = disp[ok]
+        front = self._front(vals, px, px if count_px is None else count_px)
+        if front is None:
+            return None
+        margin = CLUSTER_MARGIN_PX * px if margin_px is None else margin_px
         lower = self.fb / (self.fb / front + cfg.cluster_depth_m) - margin
         upper = front + margin
         member = (vals >= lower) & (vals <= upper)
@@ -246,38 +315,110 @@ class Ranger:
         if not w.sum() > 0:
             w = np.ones_like(v)
         # Larger disparity is nearer: leave surface_quantile of the object's weight above d.
-        d = _weighted_quantile(v, w, 1.0 - cfg.surface_quantile)
-        sigma_d = max(1.4826 * _weighted_median(np.abs(v - _weighted_median(v, w)), w), self.sigma_floor_px)
-        z = self.fb / d
-        sigma_z = z * z / self.fb * sigma_d
-        mean_conf = float(w.mean()) if conf is not None else 1.0
-        quality = int(min(100, max(2, round(100.0 * valid_fraction * mean_conf))))
+        d, med = _weighted_quantiles(v, w, 1.0 - cfg.surface_quantile, 0.5)
+        sigma_d = max(1.4826 * _weighted_median(np.abs(v - med), w), PIXEL_LOCKING_SIGMA_PX * px)
         with np.errstate(invalid="ignore"):
-            obj = ok & (disp >= lower) & (disp <= upper)
-        rows, cols = np.flatnonzero(obj.any(axis=1)), np.flatnonzero(obj.any(axis=0))
-        bbox = (int(cols[0]) + x0, int(rows[0]) + y0, int(cols[-1]) + x0 + 1, int(rows[-1]) + y0 + 1)
-        n_obj = int(v.size)
-        why = (f"sigma {sigma_z:.3f} m above max_sigma_m {cfg.max_sigma_m:.3f} m" if sigma_z > cfg.max_sigma_m else
-               f"signal quality {quality} below min_quality {cfg.min_quality}" if quality < cfg.min_quality else None)
-        if why is not None:
-            return Measurement(None, quality=quality, bbox=bbox, disparity_px=d, sigma_px=sigma_d, n_px=n_obj,
-                               valid_fraction=valid_fraction, reason=f"{why} (the object would read {z:.3f} m)")
-        return Measurement(distance_m=z, sigma_m=sigma_z, quality=quality, bbox=bbox, disparity_px=d,
-                           sigma_px=sigma_d, n_px=n_obj, valid_fraction=valid_fraction)
+            mask = ok & (disp >= lower) & (disp <= upper)
+        rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+        bbox = (int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1)
+        return _Object(front, d, sigma_d, int(v.size), float(w.mean()) if conf is not None else 1.0, lower, bbox)
 
-    def _front(self, vals: np.ndarray) -> float | None:
+    def _refine(self, m: Measurement, obj: "_Object", result: DisparityResult, disp: np.ndarray,
+                ok: np.ndarray) -> Measurement:
+        """The coarse reading ``m`` re-measured on the fine pass (:mod:`uav_depth.core.disparity.fine`).
+
+        The object's box (one coarse pixel more all round, inside the ROI) is matched at
+        full resolution from :data:`FINE_BELOW_REL` of the search below the coarse
+        disparity. Only pixels the coarse pass gave to the object count: measured
+        confidently at the object's depth or nearer, or not measured at all (a thin
+        twig in front is often lost at half scale; so are the columns SGBM leaves
+        unanswered). The narrow search would
+        match the background around a thin branch to something inside it, and without
+        a right matcher nothing in the fine pass tells such a match from a true one.
+        Fine pixels at the search's lower end (farther than searched) do not count
+        either. The fine object (its front and its own band) needs as many pixels as a
+        coarse one (``min_valid_px`` coarse matched pixels): the same image area, not a
+        smaller speckle.
+
+        The fine object replaces the coarse one when it is nearer (nearer is always
+        safe), or farther but confident: within half a coarse matched pixel of the
+        coarse disparity (the coarse pass's own rounding) and measured at least as
+        tightly (its spread sigma_d no larger). Otherwise the coarse reading stands:
+        never farther than what the coarse pass saw on a fine match that does not hold
+        up.
+        """
+        assert result.fine is not None
+        x0, y0, x1, y1 = self.roi
+        pad = int(math.ceil(self.px))
+        bx0, by0, bx1, by1 = obj.bbox
+        bx0, by0, bx1, by1 = max(0, bx0 - pad), max(0, by0 - pad), min(x1 - x0, bx1 + pad), min(y1 - y0, by1 + pad)
+        # Columns beside the box where the coarse pass measured nothing at all in the box's rows (e.g. the
+        # band SGBM leaves unanswered at the image's left edge, wider than the object's own disparity
+        # needs) may hold a nearer part of the object: the fine pass looks there too.
+        seen = np.isfinite(disp[by0:by1]).any(axis=0)
+        ox0, ox1 = bx0, bx1
+        while bx0 > 0 and not seen[bx0 - 1]:
+            bx0 -= 1
+        while bx1 < seen.size and not seen[bx1]:
+            bx1 += 1
+        # The window keeps the unseen columns (the side they are on), else centres on the front pixels.
+        anchor = "left" if bx0 < ox0 else "right" if bx1 > ox1 else None
+        bx0, by0, bx1, by1 = self._fine_window((bx0, by0, bx1, by1), ok & (disp >= obj.d), anchor)
+        num = self.params.compute.fine_disparities
+        d0 = max(0, int(math.floor(obj.d - FINE_BELOW_REL * num)))
+        fm = result.fine((bx0 + x0, by0 + y0, bx1 + x0, by1 + y0), d0)
+        if fm is None:
+            return m
+        box = (slice(by0, by1), slice(bx0, bx1))
+        with np.errstate(invalid="ignore"):
+            mine = (ok[box] & (disp[box] >= obj.lower)) | ~np.isfinite(disp[box])
+            fok = self._usable(fm.measured, fm.confidence) & (fm.measured >= fm.d_lo + 1.0) & mine
+        fobj = self._object(fm.measured, fm.confidence, fok, 1.0, self.px, FINE_MARGIN_PX)
+        if fobj is None or fobj.n < self.config.min_valid_px * self.px * self.px:
+            return m
+        if fobj.d < obj.d and not (obj.d - fobj.d <= FINE_FARTHER_PX * self.px and fobj.sigma_d <= obj.sigma_d):
+            return m
+        return self._reading(fobj, _shift(fobj.bbox, bx0 + x0, by0 + y0), m.quality, m.valid_fraction, refined=True)
+
+    @staticmethod
+    def _fine_window(box: tuple[int, int, int, int], front: np.ndarray,
+                     anchor: str | None = None) -> tuple[int, int, int, int]:
+        """``box`` (ROI coordinates) cut to at most FINE_MAX_COLS x FINE_MAX_ROWS around the median of the
+        ``front`` pixels in it (those that decide the reading), or along the ``anchor`` side ("left",
+        "right"): the fine pass's cost stays bounded."""
+        bx0, by0, bx1, by1 = box
+        ys, xs = np.nonzero(front[by0:by1, bx0:bx1])
+        if ys.size == 0:
+            return box
+        cx, cy = bx0 + int(np.median(xs)), by0 + int(np.median(ys))
+        if anchor == "left":
+            cx = bx0 + FINE_MAX_COLS // 2
+        elif anchor == "right":
+            cx = bx1 - FINE_MAX_COLS // 2
+
+        def cut(lo: int, hi: int, c: int, n: int) -> tuple[int, int]:
+            if hi - lo <= n:
+                return lo, hi
+            start = min(max(lo, c - n // 2), hi - n)
+            return start, start + n
+
+        (bx0, bx1), (by0, by1) = cut(bx0, bx1, cx, FINE_MAX_COLS), cut(by0, by1, cy, FINE_MAX_ROWS)
+        return bx0, by0, bx1, by1
+
+    def _front(self, vals: np.ndarray, px: float, count_px: float) -> float | None:
         """The nearest disparity (px) at which the pixels at least as near form a significant object:
-        at least ``min_valid_px`` matched pixels and ``min_object_m2`` of visible area; None if none."""
+        at least ``min_valid_px`` matched pixels (of ``count_px`` input px across; disparities matched at
+        ``px`` input px per matched px) and ``min_object_m2`` of visible area; None if none."""
         if vals.size == 0:
             return None
         cfg = self.config
         # Disparities in 1/16 matched px (SGBM's own resolution), counted from the nearest down.
-        q = np.rint(vals * (16.0 / self.px)).astype(np.int64)
+        q = np.rint(vals * (16.0 / px)).astype(np.int64)
         counts = np.bincount(q)
-        levels = np.arange(counts.size) * (self.px / 16.0)
+        levels = np.arange(counts.size) * (px / 16.0)
         with np.errstate(divide="ignore"):
             px_area = np.where(levels > 0, (self.calibration.baseline_m / np.maximum(levels, 1e-9)) ** 2, 0.0)
-        n_near = np.cumsum(counts[::-1])[::-1] / (self.px * self.px)      # matched pixels at or nearer
+        n_near = np.cumsum(counts[::-1])[::-1] / (count_px * count_px)   # matched pixels at or nearer
         a_near = np.cumsum((counts * px_area)[::-1])[::-1]                # m^2 at or nearer
         hit = np.flatnonzero((n_near >= cfg.min_valid_px) & (a_near >= cfg.min_object_m2))
         if hit.size == 0:
@@ -302,6 +443,25 @@ class Ranger:
             return (f"the near pass matches {share:.0%} of the ROI at disparities {np.median(b):.0f} px (median), "
                     f"beyond the search's {self.d_max:.0f} px: nearer than {self.limits.min_distance_m:.3f} m")
         return None
+
+
+@dataclass(frozen=True)
+class _Object:
+    """The nearest significant object of one map: ``front`` disparity, reported disparity ``d`` and its
+    spread ``sigma_d`` (input px), pixel count ``n`` (input px), mean confidence, the band's lower
+    disparity ``lower``, and ``bbox`` (x0, y0, x1, y1) in the map's own coordinates."""
+
+    front: float
+    d: float
+    sigma_d: float
+    n: int
+    mean_conf: float
+    lower: float
+    bbox: tuple[int, int, int, int]
+
+
+def _shift(box: tuple[int, int, int, int], dx: int, dy: int) -> tuple[int, int, int, int]:
+    return box[0] + dx, box[1] + dy, box[2] + dx, box[3] + dy
 
 
 def _fov(a0: int, a1: int, c: float, f: float) -> float:

@@ -23,9 +23,9 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import json
-    import sys
 
     from uav_depth.cli.benchmark import bench, flight_params, format_report
+    from uav_depth.cli.progress import QUIET, Progress
     from uav_depth.core.errors import ConfigError
     from uav_depth.core.params import load_params
 
@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--threads", "must be 0 (no threading) or more", args.threads)
     # The built-in flight settings are for the ZED Mini-like camera the scenes model (700 px at 1280 wide).
     flight = load_params(args.params) if args.params else flight_params(focal_px=700.0 * args.width / 1280.0)
-    progress = None if args.json else (lambda msg: print(f"... {msg}", file=sys.stderr, flush=True))
+    progress = QUIET if args.json else Progress()
     out = bench(flight, frames=args.frames, rounds=args.rounds, naive_rounds=args.naive_rounds, width=args.width,
                 height=args.height, seed=args.seed, levers=args.levers, threads=args.threads, progress=progress)
     out["flight_params_source"] = args.params or "built-in flight_params()"

@@ -37,8 +37,8 @@ def _session_pairs(path: str, n: int):
         raise ConfigError("session", "must hold at least one frame", path)
     rect = Rectifier(session.calibration())
     step = max(1, len(frames) // n)
-    for rec in frames[::step][:n]:
-        yield rect(*rec.load_pair())
+    chosen = frames[::step][:n]
+    return len(chosen), (rect(*rec.load_pair()) for rec in chosen)
 
 
 def _live_pairs(config_path: str, n: int):
@@ -74,6 +74,7 @@ def _live_pairs(config_path: str, n: int):
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from uav_depth.cli.progress import Progress
     from uav_depth.core.errors import ConfigError
     from uav_depth.core.rigcheck import MAX_VERTICAL_PX, match_offsets, summarise
 
@@ -82,12 +83,16 @@ def run(args: argparse.Namespace) -> int:
                           args.session or args.config)
     if args.frames < 1:
         raise ConfigError("--frames", "must be at least 1", args.frames)
-    pairs = _session_pairs(args.session, args.frames) if args.session else _live_pairs(args.config, args.frames)
+    total, pairs = _session_pairs(args.session, args.frames) if args.session else \
+        (args.frames, _live_pairs(args.config, args.frames))
+    progress = Progress()
+    progress.phase(f"matching features in {total} frame(s) of {args.session or args.config}")
     rows, size, n = [], None, 0
     for left, right in pairs:
         rows.append(match_offsets(left, right))
         size = (left.shape[1], left.shape[0])
         n += 1
+        progress.step("frames matched", n, total)
     offsets = np.concatenate(rows) if rows else np.zeros((0, 4))
     threshold = MAX_VERTICAL_PX if args.threshold is None else args.threshold
     check = summarise(offsets, size[0], size[1], threshold)

@@ -20,21 +20,21 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from uav_depth.cli.benchmark import flight_params
-    from uav_depth.cli.commands.synth import progress_line
+    from uav_depth.cli.progress import progress_line
     from uav_depth.core.session import iter_frames, prepare_output
     from uav_depth.sim.scene import SceneConfig, write_session
 
-    try:
-        from uav_depth.tuning.frames import FrameSet, load_frame
-        from uav_depth.tuning.objective import FITNESS, evaluate
-    except ImportError:
-        evaluate = None
     scene = SceneConfig()
     # What flies: the flight settings for this camera and resolution (deploy/params-flight.yaml at 1280x720)
     params = flight_params(scene.focal_px, scene.baseline_m)
     prepare_output(args.out, args.overwrite)
     print(f"rendering {args.frames} synthetic pairs {scene.width}x{scene.height} into {args.out} ...", flush=True)
     write_session(args.out, args.frames, args.seed, scene, progress=progress_line("rendered"))
+    try:    # after the first line: the tuner's imports take seconds on a small machine
+        from uav_depth.tuning.frames import FrameSet, load_frame
+        from uav_depth.tuning.objective import FITNESS, evaluate
+    except ImportError:
+        evaluate = None
     if evaluate is None:
         print("install uav-depth[tuning] to score it")
         return 0

@@ -61,15 +61,10 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from uav_depth.cli.progress import Progress
     from uav_depth.core.errors import FileFormatError, UavDepthError
     from uav_depth.core.params import DEFAULT_PARAMS, load_params
     from uav_depth.core.session import iter_frames
-
-    from uav_depth.tuning.frames import FrameSet, load_frame
-    from uav_depth.tuning.metrics import METRIC_NAMES
-    from uav_depth.tuning.objective import FITNESS, evaluate
-    from uav_depth.tuning.reference.provenance import summarize_references
-    from uav_depth.tuning.report import sources_text
 
     params = load_params(args.params) if args.params else DEFAULT_PARAMS
     sets = parse_sets(args.overrides)
@@ -79,11 +74,29 @@ def run(args: argparse.Namespace) -> int:
     records = list(iter_frames(args.logdir, require_reference=True))
     if not records:
         raise FileFormatError(f"{args.logdir}: no frame with a reference disparity (*_ref.npy/.pfm/.png)")
-    frames = FrameSet("evaluate", tuple(load_frame(r) for r in records))
-    ev = evaluate(params, frames, FITNESS["flown" if args.convention == "bench" else "mse"], full=True,
-                  convention=args.convention, score_roi=roi)
-    if not ev.ok:
-        raise UavDepthError(f"{args.logdir}: these parameters cannot be scored: {ev.reason}")
+    progress = Progress()
+    progress.phase(f"loading {len(records)} frame(s) from {args.logdir}")
+    from uav_depth.tuning.frames import FrameSet, load_frame     # after the first line: seconds of imports
+    from uav_depth.tuning.metrics import METRIC_NAMES
+    from uav_depth.tuning.objective import FITNESS, evaluate
+    from uav_depth.tuning.reference.provenance import summarize_references
+    from uav_depth.tuning.report import sources_text
+
+    frames = []
+    for r in records:
+        frames.append(load_frame(r))
+        progress.step("frames loaded", len(frames), len(records))
+    # One frame at a time (the pipeline keeps nothing between frames), so that a terminal sees each scored.
+    progress.phase(f"scoring parameters {params.hash()} on {len(frames)} frame(s)")
+    fitness = FITNESS["flown" if args.convention == "bench" else "mse"]
+    frame_metrics = []
+    for frame in frames:
+        ev = evaluate(params, FrameSet("evaluate", (frame,)), fitness, full=True, convention=args.convention,
+                      score_roi=roi)
+        if not ev.ok:
+            raise UavDepthError(f"{args.logdir}: these parameters cannot be scored: {ev.reason}")
+        frame_metrics.extend(ev.frame_metrics)
+        progress.step("frames scored", len(frame_metrics), len(frames))
     names = list(METRIC_NAMES[args.convention])
     if roi is not None:
         region = f"--roi {list(roi)}"
@@ -92,13 +105,13 @@ def run(args: argparse.Namespace) -> int:
     references = summarize_references(records)
     clean = lambda v: None if isinstance(v, float) and not math.isfinite(v) else v  # noqa: E731
     per = []
-    for f in ev.frame_metrics:
+    for f in frame_metrics:
         row = {k: f[k] for k in ("id", *names, "ms")}
         row.update(truth_m=f.get("truth_m"), branch_m=clean(f.get("branch_m")),
                    branch_err_pct=f.get("branch", math.nan))
         per.append(row)
     errs = [r["branch_err_pct"] for r in per if math.isfinite(r["branch_err_pct"])]
-    mean = {k: ev.metrics[k] for k in names} | {"ms": ev.ms,
+    mean = {k: float(np.mean([r[k] for r in per])) for k in (*names, "ms")} | {
             "branch_err_pct": float(np.mean(errs)) if errs else math.nan,
             "branch_err_median_pct": float(np.median(errs)) if errs else math.nan}
     if args.json:

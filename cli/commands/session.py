@@ -78,11 +78,11 @@ def find_pairs(folder):
 
 
 def run(args: argparse.Namespace) -> int:
-    import sys
     import time
 
     import cv2
 
+    from uav_depth.cli.progress import Progress
     from uav_depth.core.calibration import Calibration, load_calibration
     from uav_depth.core.errors import ConfigError, FileFormatError
     from uav_depth.core.session import SessionWriter, prepare_output
@@ -115,16 +115,18 @@ def run(args: argparse.Namespace) -> int:
                                       "a session has one size (one calibration); import each size on its own")
         return imgs
 
-    t0 = last = time.monotonic()
-    for _, lp, rp in pairs:     # check every pair before writing anything
+    progress = Progress()
+    progress.phase(f"checking {len(pairs)} pairs {w}x{h} in {args.source} (nothing is written before)")
+    t0 = time.monotonic()
+    for i, (_, lp, rp) in enumerate(pairs):     # check every pair before writing anything
         load(lp, rp)
+        progress.step("pairs checked", i + 1, len(pairs))
+    progress.phase(f"writing {len(pairs)} pairs into {args.out}")
     writer = SessionWriter(args.out, calib)
     for i, (name, lp, rp) in enumerate(pairs):
         left, right = load(lp, rp)
         writer.write(i, left, right, meta={"imported_from": str(lp), "name": name})
-        if sys.stderr.isatty() and time.monotonic() - last > 2.0:
-            print(f"  {i + 1}/{len(pairs)} pairs", file=sys.stderr, flush=True)
-            last = time.monotonic()
+        progress.step("pairs written", i + 1, len(pairs))
     print(f"imported {len(pairs)} pairs {w}x{h} into {args.out} (f {calib.focal_px:g} px, B {calib.baseline_m:g} m) "
           f"in {time.monotonic() - t0:.1f} s; next: uav-depth check-rig {args.out}, uav-depth reference import "
           f"{args.out} --from DIR")

@@ -23,23 +23,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--color", action="store_true", help="write BGR colour frames instead of grey")
 
 
-def progress_line(what: str, every_s: float = 2.0):
-    """A ``progress(done, total)`` that prints ``  WHAT done/total`` to a terminal's stderr at most every
-    ``every_s`` (no line when stderr is not a terminal: logs and pipes stay clean)."""
-    import sys
-
-    last = [time.monotonic()]
-
-    def progress(done: int, total: int) -> None:
-        now = time.monotonic()
-        if sys.stderr.isatty() and (now - last[0] >= every_s or done == total):
-            print(f"  {what} {done}/{total}", file=sys.stderr, flush=True)
-            last[0] = now
-
-    return progress
-
-
 def run(args: argparse.Namespace) -> int:
+    from uav_depth.cli.progress import Progress
     from uav_depth.core.errors import ConfigError
     from uav_depth.core.session import prepare_output
     from uav_depth.sim.scene import SceneConfig, write_session
@@ -52,9 +37,11 @@ def run(args: argparse.Namespace) -> int:
         kw["branch_distance_m"] = args.distance_m
     base = SceneConfig(**kw)
     prepare_output(args.outdir, args.overwrite)
+    progress = Progress()
+    progress.phase(f"rendering {args.frames} synthetic pairs {args.width}x{args.height} into {args.outdir}")
     t0 = time.perf_counter()
     write_session(args.outdir, args.frames, args.seed, base, vary_scenes=not args.fixed_conditions,
-                  fixed_distance=args.distance_m, progress=progress_line("rendered"))
+                  fixed_distance=args.distance_m, progress=progress.counter("rendered"))
     dt = time.perf_counter() - t0
     print(f"wrote {args.frames} frames to {args.outdir} ({dt / args.frames * 1000:.0f} ms per pair incl. PNG)")
     return 0

@@ -15,7 +15,10 @@ of frozen inputs:
 * refine: OpenCV's WLS smoothing at the input or matched resolution
   (``compute.wls_at``), only when the pipeline is built with ``refine=True``
   (the daemon ranges on ``measured`` + ``confidence`` and builds it without);
-* assemble (here): paste the region into full-size maps, disparities in input px.
+* assemble (here): paste the region into full-size maps, disparities in input px;
+* near (:mod:`.near`) and fine (:mod:`.fine`), in the flight pipeline: a coarse pass
+  for objects nearer than the search, and a full-resolution re-match of the box
+  ranging asks for (``DisparityResult.fine``).
 
 Outside the region disparities are NaN and confidence is 0. With the default
 parameters the pipeline computes exactly OpenCV's sample (full frame, full
@@ -24,12 +27,16 @@ resolution, colour as given).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
+import functools
 import warnings
 
 import cv2
 import numpy as np
 
 from uav_depth.core.disparity.confidence import lr_confidence
+from uav_depth.core.disparity.fine import FineMatch, FineMatcher
 from uav_depth.core.disparity.near import NearCheck, max_disparity_px, near_params
 from uav_depth.core.disparity.match import Matchers, build_matchers, match_left, match_right, to_float
 from uav_depth.core.disparity.prepare import Prepared, check_pair, prepare
@@ -49,10 +56,13 @@ class DisparityPipeline:
     thread or process. Building is cheap (well under a millisecond).
     """
 
-    def __init__(self, params: StereoParams, refine: bool = True, near: bool = False):
+    def __init__(self, params: StereoParams, refine: bool = True, near: bool = False, fine: bool = False):
         self.params = params
         self.refine = refine and params.wls.enabled
         self._near = DisparityPipeline(near_params(params), refine=False) if near else None
+        # The fine pass only adds resolution: at compute.scale 1 the main match is already full resolution.
+        self._fine = (FineMatcher(params) if fine and params.compute.fine_disparities > 0
+                      and params.compute.scale < 1.0 else None)
         self.matchers: Matchers = build_matchers(params)
         m = self.matchers
         self.left_matcher, self.right_matcher, self.wls = m.left, m.right, m.wls
@@ -70,14 +80,16 @@ class DisparityPipeline:
         too narrow for the disparity search gives all-NaN maps (nothing matched).
         """
         res, _, _ = self._run(left, right)
+        fine = None if self._fine is None or res.warning else functools.partial(self._fine.match, left, right)
         if self._near is None:
-            return res
+            return res if fine is None else replace(res, fine=fine)
         laps = Laps()
         near, _, _ = self._near._run(left, right)
         check = NearCheck(near.measured, max_disparity_px(self.params))
         laps.lap("near")
         return DisparityResult(res.disparity, res.measured, res.confidence, res.warning,
-                               {**res.timings_ms, **laps.ms}, near=check, near_confidence=near.confidence)
+                               {**res.timings_ms, **laps.ms}, near=check, near_confidence=near.confidence,
+                               fine=fine)
 
     def _run(self, left: np.ndarray, right: np.ndarray) -> tuple[DisparityResult, Window | None, Prepared | None]:
         """One pass of the stages; also the window and prepared images (None when nothing was matched)."""
@@ -164,9 +176,9 @@ class DisparityPipeline:
 
 
 def flight_pipeline(params: StereoParams) -> DisparityPipeline:
-    """What flies: the measured map, its confidence and the near check; no WLS smoothing (ranging
-    does not use it)."""
-    return DisparityPipeline(params, refine=False, near=True)
+    """What flies: the measured map, its confidence, the near check and (``compute.fine_disparities``)
+    the fine pass ranging may ask for; no WLS smoothing (ranging does not use it)."""
+    return DisparityPipeline(params, refine=False, near=True, fine=True)
 
 
-__all__ = ["DisparityPipeline", "DisparityResult", "NearCheck", "check_pair", "flight_pipeline"]
+__all__ = ["DisparityPipeline", "DisparityResult", "FineMatch", "NearCheck", "check_pair", "flight_pipeline"]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -25,7 +25,10 @@ class DisparityResult:
     run (prepare, match_left, match_right, confidence, wls, assemble, near), ms.
     ``near``: the near check (:mod:`.near`) when the pipeline was built with
     ``near=True``, else None; ``near_confidence``: the near pass's confidence map
-    (same layout as ``confidence``) to filter ``near.disparity`` with.
+    (same layout as ``confidence``) to filter ``near.disparity`` with. ``fine``: when the
+    flight pipeline has a fine pass (``compute.fine_disparities``), ``fine(box, d0)`` re-matches
+    ``box`` (x0, y0, x1, y1 input px) of this frame at full resolution over disparities from ``d0``
+    (:class:`.fine.FineMatch`, or None when the box cannot be matched); else None.
     """
 
     disparity: np.ndarray
@@ -35,6 +38,7 @@ class DisparityResult:
     timings_ms: Mapping[str, float] = field(default_factory=dict)
     near: Any = None
     near_confidence: np.ndarray | None = None
+    fine: Callable[[tuple[int, int, int, int], int], Any] | None = None
 
 
 class Laps:

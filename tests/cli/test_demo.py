@@ -5,7 +5,7 @@ import io
 import re
 
 from uav_depth.cli.benchmark import flight_params
-from uav_depth.cli.commands.synth import progress_line
+from uav_depth.cli.progress import progress_line
 from uav_depth.cli.main import main
 
 

@@ -130,7 +130,7 @@ def test_compute_defaults_are_the_full_frame_baseline():
     assert cp.is_baseline and cp.roi == (0.0, 0.0, 1.0, 1.0) and cp.scale == 1.0 and cp.grey is False
     assert cp.roi_pixels(1280, 720) == (0, 0, 1280, 720)
     assert DEFAULT_PARAMS.to_dict()["compute"] == {"roi": [0.0, 0.0, 1.0, 1.0], "scale": 1.0, "grey": False,
-                                                   "wls_at": "input"}
+                                                   "wls_at": "input", "fine_disparities": 0}
 
 
 def test_compute_keys_round_trip_and_region_is_written_on_one_line(tmp_path):
