@@ -443,8 +443,11 @@ def test_avoidance_stops_the_approach_on_the_daemons_readings(tmp_path):
     slow = [r for r in results if r.speed <= 1.0]
     assert all(r.readings > 20 for r in slow), results
     max_age_s = 0.45
+    # (No lag where avoidance slowed the vehicle before it reached 90 % of the speed: Loiter brakes early
+    # once the branch is seen from far enough.)
+    assert any(r.reading_lag_m is not None for r in slow), results
     for r in slow:
-        assert r.reading_lag_m is not None and \
+        assert r.reading_lag_m is None or \
             -0.05 * 2.5 - 0.01 <= r.reading_lag_m <= r.speed * (max_age_s + 0.2) + 0.05 * 2.5 + 0.01, r
     # Avoidance held the slowest approach short of the surface in both modes, on those readings alone
     # (docs/sitl.md: the highest speed at which it holds, and why; faster ones are recorded above).
