@@ -3,7 +3,7 @@
 Numbers, not assertions. Needs the SITL binary (UAV_DEPTH_ARDUCOPTER=/path/to/arducopter; docs/sitl.md):
 
     UAV_DEPTH_ARDUCOPTER=.../build/sitl/bin/arducopter .venv/bin/python bench/sitl_ardupilot.py \
-        [--sensors prx rf] [--modes Guided Loiter] [--speeds 0.5 1 2] [--hover 3 4 5] [--set AVOID_MARGIN=1.5]
+        [--sensors prx rf] [--modes Guided Loiter] [--speeds 0.5 1 2] [--hover 2 3 4 5] [--set AVOID_MARGIN=1.5]
 
 For each sensor set-up (prx: PRX1_TYPE=2 fed by the daemon's DISTANCE_SENSOR; rf: RNGFND1_TYPE=10 with
 PRX1_TYPE=4) one SITL boots, takes the parameters in the autopilot's order (type, reboot, orientation and
@@ -12,7 +12,7 @@ takes off to 3 m and flies north at the branch from 5.5 m away, at each speed in
 velocity, Loiter full stick at LOIT_SPEED), back to the start in between. Printed per flight: the
 closest approach of the camera to the branch surface (from LOCAL_POSITION_NED; negative = through it),
 whether it stopped, and the autopilot's own reading minus the geometry at the same instant while at
-speed (the reading lag, m). Then it hovers 3, 4 and 5 m from the branch: the daemon's error against the
+speed (the reading lag, m). Then it hovers 2, 3, 4 and 5 m from the branch: the daemon's error against the
 ray-cast truth (its truth log) and how often |error| <= 2 sigma of the covariance it sent; and the
 daemon's capture-to-estimate latency (truth log), the part of capture-to-autopilot it controls.
 """
@@ -107,7 +107,7 @@ def main(argv=None) -> int:
     ap.add_argument("--sensors", nargs="+", default=["prx", "rf"], choices=sorted(h.SENSORS))
     ap.add_argument("--modes", nargs="+", default=["Guided", "Loiter"], choices=["Guided", "Loiter"])
     ap.add_argument("--speeds", nargs="+", type=float, default=[0.5, 1.0, 2.0])
-    ap.add_argument("--hover", nargs="*", type=float, default=[3.0, 4.0, 5.0])
+    ap.add_argument("--hover", nargs="*", type=float, default=[2.0, 3.0, 4.0, 5.0])
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="an avoidance parameter")
     ap.add_argument("--keep", metavar="DIR", help="keep SITL, daemon and truth logs here")
     ap.add_argument("--daemon-set", action="append", default=[], metavar="KEY=VALUE",

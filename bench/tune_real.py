@@ -116,24 +116,40 @@ def change(base: float, new: float) -> float:
 
 
 def table(rows: dict[str, dict], metrics: tuple[str, ...]) -> list[str]:
+    """Train (the 6 tuning scenes) and held-out (the other 11) means, change against the baseline, and how many
+    held-out scenes got more than 5 % worse (named below the table)."""
     base = rows["manual baseline"]
-    lines = ["| row | " + " | ".join(f"held-out {m} | change | scenes worse >5%" for m in metrics) + " |",
-             "|---|" + "---|---|---|" * len(metrics)]
+    lines = ["| row | " + " | ".join(f"train {m} | held-out {m} | change | scenes worse >5%" for m in metrics)
+             + " | density |", "|---|" + "---|---|---|---|" * len(metrics) + "---|"]
     for name, doc in rows.items():
         cells = []
         for m in metrics:
             mean = doc["mean"][m]
-            worse = sum(1 for a, b in zip(base["per"][m], doc["per"][m]) if change(a, b) > 5.0)
-            cells += [f"{mean:.3f}", "" if doc is base else f"{change(base['mean'][m], mean):+.1f}%",
-                      "" if doc is base else f"{worse}/{len(doc['per'][m])}"]
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+            worse = [i for a, b, i in zip(base["per"][m], doc["per"][m], doc["ids"]) if change(a, b) > 5.0]
+            tr = doc["train"]["mean"][m]
+            cells += [f"{tr:.3f}" + ("" if doc is base else f" ({change(base['train']['mean'][m], tr):+.1f}%)"),
+                      f"{mean:.3f}", "" if doc is base else f"{change(base['mean'][m], mean):+.1f}%",
+                      "" if doc is base else f"{len(worse)}/{len(doc['per'][m])}"]
+        lines.append(f"| {name} | " + " | ".join(cells) + f" | {doc['mean']['density']:.3f} |")
+    lines.append("")
+    for name, doc in rows.items():
+        if doc is base:
+            continue
+        for m in metrics:
+            worse = [f"{i.split('/')[0]} {change(a, b):+.0f}%" for a, b, i in
+                     zip(base["per"][m], doc["per"][m], doc["ids"]) if change(a, b) > 5.0]
+            if worse:
+                lines.append(f"- {name}, {m} worse >5%: {', '.join(worse)}")
     return lines
 
 
-def scores(test: Path, params: Path | None) -> dict:
+def scores(test: Path, params: Path | None, train: Path | None = None) -> dict:
     doc = evaluate(test, params)
-    return {"mean": doc["mean"], "per": {m: [f[m] for f in doc["frames"]] for m in ("mae", "bad2", "density")},
-            "ids": [f["id"] for f in doc["frames"]]}
+    out = {"mean": doc["mean"], "per": {m: [f[m] for f in doc["frames"]] for m in ("mae", "bad2", "density")},
+           "ids": [f["id"] for f in doc["frames"]]}
+    if train is not None:
+        out["train"] = scores(train, params)
+    return out
 
 
 def synthetic_flight(work: Path, root: Path, population: int, generations: int) -> list[str]:
@@ -160,6 +176,11 @@ def main() -> int:
     ap.add_argument("--generations", type=int, default=6)
     ap.add_argument("--workers", default="2")
     ap.add_argument("--skip-synthetic", action="store_true")
+    ap.add_argument("--row", action="append", default=[],
+                    help="another row, 'LABEL:TUNE ARGS' (e.g. 'tpe flown-bad2:--metric flown-bad2')")
+    ap.add_argument("--skip-flight", action="store_true")
+    ap.add_argument("--skip-default", action="store_true")
+    ap.add_argument("--skip-ga-paper", action="store_true")
     args = ap.parse_args()
     from uav_depth.cli.benchmark import machine_line
 
@@ -173,28 +194,44 @@ def main() -> int:
     print(machine_line())
     print(f"train (tune): {', '.join(sorted(TRAIN))}; held-out (report): "
           f"{', '.join(s for s in scenes if s not in TRAIN)}; budget {args.population} x {args.generations}")
-    rows: dict[str, dict] = {"manual baseline": scores(test, None)}
+    rows: dict[str, dict] = {"manual baseline": scores(test, None, train)}
     notes = []
     runs = [("tune (default: tpe, flown)", work / "tuned.yaml", ()),
             ("ga-paper (faithful: mse, WLS map)", work / "ga-paper.yaml", ("--optimizer", "ga-paper"))]
+    runs = [r for r, skip in zip(runs, (args.skip_default, args.skip_ga_paper)) if not skip]
+    for spec in args.row:
+        label, _, extra = spec.partition(":")
+        runs.append((label, work / f"row-{len(runs)}.yaml", tuple(extra.split())))
     for name, out, extra in runs:
-        summary, wall, _ = tune(train, out, *budget, *extra)
-        rows[name] = scores(test, out)
+        summary, wall, code = tune(train, out, *budget, *extra)
+        rows[name] = scores(test, out, train)
         print(f"  {name}: tuned and scored at {time.perf_counter() - t_start:.0f} s", flush=True)
         sel = summary["selection"]
         cmp = summary["comparison"]
         sel["base"] = sel["candidates"][0]
-        notes.append(f"{name}: {wall:.0f} s, {summary['evaluated']} evaluated; chosen on {sel['on']} "
-                     f"({'beats' if sel['beats_base'] else 'does NOT beat'} the base there); its own metric "
-                     f"{summary['config']['metric']} train {sel['base']['train']:.4g} -> {sel['candidates'][sel['winner']]['train']:.4g}, "
-                     f"held-out {sel['base']['holdout']:.4g} -> {sel['candidates'][sel['winner']]['holdout']:.4g}; "
-                     f"train mae {cmp['train']['metrics'].get('mae', {}).get('tuned', float('nan')):.3f}")
-    print("\nHeld-out scenes (11), benchmark convention, the map the daemon ranges on, whole frame:\n")
+        folds = sel.get("folds") or []
+        failed = sum(r["failed"] for r in summary["runs"])
+        notes.append(f"{name}: {wall:.0f} s, {summary['evaluated']} evaluated in fold 1 ({failed} of its "
+                     f"{sum(r['proposals'] for r in summary['runs'])} proposals failed), {len(folds)} fold(s); "
+                     f"chosen on {sel['on']} ({'beats' if sel['beats_base'] else 'does NOT beat'} the base there"
+                     f"{'' if code == 0 else ', the gate would refuse it'}); its own metric "
+                     f"{summary['config']['metric']} train {sel['base']['train']:.4g} -> "
+                     f"{sel['candidates'][sel['winner']]['train']:.4g}, held-out {sel['base']['holdout']:.4g} -> "
+                     f"{sel['candidates'][sel['winner']]['holdout']:.4g}"
+                     + "".join(f"; fold {f['fold']} train {f['base_train']:.4g}->{f['winner_train']:.4g} held-out "
+                               f"{f['base_holdout']:.4g}->{f['winner_holdout']:.4g}" for f in folds)
+                     + f"; chosen sgbm {summary['chosen']['params']['sgbm']}"
+                     + f"; train mae {cmp['train']['metrics'].get('mae', {}).get('tuned', float('nan')):.3f}")
+    print("\nTrain (6 tuning scenes) and held-out (11 other scenes), benchmark convention, the map the daemon "
+          "ranges on, whole frame:\n")
     print("\n".join(table(rows, ("mae", "bad2"))))
     print("\ndensity (held-out mean): " + ", ".join(f"{n} {d['mean']['density']:.3f}" for n, d in rows.items()))
     for n in notes:
         print("- " + n)
     # The flight file, tuned on the real training scenes: does the daemon's distance improve held out?
+    if args.skip_flight:
+        print(f"\ntotal {time.perf_counter() - t_start:.0f} s")
+        return 0
     flight = root / "deploy" / "params-flight.yaml"
     summary, wall, _ = tune(train, work / "flight-tuned.yaml", "--base", flight, *budget)
     b, t = branch_errors(test, flight), branch_errors(test, work / "flight-tuned.yaml")

@@ -64,6 +64,7 @@ class Variant:
     threads: int | None = None
     note: str = ""
     flies: bool = False
+    smooth: bool = True     # not flies: run the WLS smoothing (False: the WLS lever alone, no near check)
 
 
 @dataclass
@@ -255,7 +256,8 @@ def run(frames: Sequence[BenchFrame], variants: Sequence[Variant], progress: Pro
 
     ``progress``: a step line per frame timed (every variant of the round on it) on a terminal."""
     make_ranger = _ranger_factory()
-    pipes = {v.name: flight_pipeline(v.params) if v.flies else DisparityPipeline(v.params) for v in variants}
+    pipes = {v.name: flight_pipeline(v.params) if v.flies else DisparityPipeline(v.params, refine=v.smooth)
+             for v in variants}
     results = {v.name: VariantResult(v) for v in variants}
     default_threads = cv2.getNumThreads()
     n_rounds = max(v.rounds for v in variants)
@@ -310,6 +312,8 @@ def bench(flight: StereoParams, frames: int = 12, rounds: int = 20, naive_rounds
                             note="OpenCV sample: full frame, colour, SGBM+right+WLS"),
                     Variant("flight+WLS", flight, rounds, note="the flight file with WLS smoothing, no near check "
                             "(how it flew before)"),
+                    Variant("flight-noSmooth", flight, rounds, smooth=False,
+                            note="flight+WLS without the WLS smoothing (the smoothing's saving alone, no near check)"),
                     Variant("flight", flight, rounds, flies=True,
                             note="the flight parameter file as it flies: no WLS smoothing, near check")]
     out = run(fr, variants, progress)

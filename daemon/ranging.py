@@ -330,8 +330,9 @@ class Ranger:
         The object's box (one coarse pixel more all round, inside the ROI) is matched at
         full resolution from :data:`FINE_BELOW_REL` of the search below the coarse
         disparity. Only pixels the coarse pass gave to the object count: measured
-        confidently at the object's depth or nearer, or in columns the coarse pass
-        could not answer at all. The narrow search would
+        confidently at the object's depth or nearer, or not measured at all (a thin
+        twig in front is often lost at half scale; so are the columns SGBM leaves
+        unanswered). The narrow search would
         match the background around a thin branch to something inside it, and without
         a right matcher nothing in the fine pass tells such a match from a true one.
         Fine pixels at the search's lower end (farther than searched) do not count
@@ -363,7 +364,6 @@ class Ranger:
         # The window keeps the unseen columns (the side they are on), else centres on the front pixels.
         anchor = "left" if bx0 < ox0 else "right" if bx1 > ox1 else None
         bx0, by0, bx1, by1 = self._fine_window((bx0, by0, bx1, by1), ok & (disp >= obj.d), anchor)
-        seen = np.isfinite(disp[by0:by1, bx0:bx1]).any(axis=0)
         num = self.params.compute.fine_disparities
         d0 = max(0, int(math.floor(obj.d - FINE_BELOW_REL * num)))
         fm = result.fine((bx0 + x0, by0 + y0, bx1 + x0, by1 + y0), d0)
@@ -371,8 +371,7 @@ class Ranger:
             return m
         box = (slice(by0, by1), slice(bx0, bx1))
         with np.errstate(invalid="ignore"):
-            mine = ok[box] & (disp[box] >= obj.lower)
-            mine[:, ~seen] = True
+            mine = (ok[box] & (disp[box] >= obj.lower)) | ~np.isfinite(disp[box])
             fok = self._usable(fm.measured, fm.confidence) & (fm.measured >= fm.d_lo + 1.0) & mine
         fobj = self._object(fm.measured, fm.confidence, fok, 1.0, self.px, FINE_MARGIN_PX)
         if fobj is None or fobj.n < self.config.min_valid_px * self.px * self.px:

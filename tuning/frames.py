@@ -202,3 +202,25 @@ def load_split(logdir: str | os.PathLike[str], holdout: str | None, needs: Itera
             hint = "; the branch metric needs each frame's branch_distance_m (synthetic sessions carry it)"
         raise FileFormatError(f"{logdir}: no training frame with {what} (after --holdout){hint}")
     return train, held
+
+
+def load_folds(logdir: str | os.PathLike[str], k: int, needs: Iterable[str]) -> list[tuple[FrameSet, FrameSet]]:
+    """k (train, held-out) splits by session: fold j holds out the sessions j, j+k, j+2k ... (name order).
+
+    Each frame is loaded once and shared by the folds. Every fold must keep a training frame with what the
+    fitness ``needs``."""
+    needs = tuple(needs)
+    sessions = find_sessions(logdir)
+    if k < 2 or len(sessions) < k:
+        raise ConfigError("--folds", f"needs at least as many sessions as folds ({len(sessions)} sessions)", k)
+    per_session = [[load_frame(r) for r in s.frames()] for s in sessions]
+    folds = []
+    for j in range(k):
+        train = [f for i, fs in enumerate(per_session) if i % k != j for f in fs]
+        held = [f for i, fs in enumerate(per_session) if i % k == j for f in fs]
+        train_set = FrameSet("train", tuple(train)).filter(needs)
+        if not len(train_set):
+            raise FileFormatError(f"{logdir}: fold {j + 1} of {k} has no training frame with "
+                                  f"{' and '.join(needs) or 'frames'}")
+        folds.append((train_set, FrameSet("holdout", tuple(held)).filter(needs)))
+    return folds

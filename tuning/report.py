@@ -103,6 +103,16 @@ def table_markdown(cmp: Mapping[str, dict], metric: str, references: Mapping[str
             if row.get("fragile"):
                 note = (note + " rejected: " + row["fragile"]).strip()
             lines.append(f"| {i} | {_f(row['train'])} | {_f(row['holdout'])} | {note} |")
+    folds = (selection or {}).get("folds") or []
+    if len(folds) > 1:
+        lines += ["", f"{len(folds)}-fold by session: each fold searched on its training sessions and chose on its "
+                  "own held-out ones (above: the fold winners, held-out = mean over the folds):", "",
+                  "| fold | train frames | held-out frames | base train | winner train | base held-out | "
+                  "winner held-out |", "|---|---|---|---|---|---|---|"]
+        for f in folds:
+            lines.append(f"| {f['fold']} | {len(f['train_frames'])} | {len(f['holdout_frames'])} | "
+                         f"{_f(f['base_train'])} | {_f(f['winner_train'])} | {_f(f['base_holdout'])} | "
+                         f"{_f(f['winner_holdout'])} |")
     return "\n".join(lines) + "\n"
 
 

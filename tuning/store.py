@@ -2,7 +2,8 @@
 
 Every optimiser (the paper's GA too) writes into an ordinary Optuna study, so
 ``optuna-dashboard sqlite:///STORE`` shows a run live and ``optuna.load_study``
-reads it. One study per store file, named :data:`STUDY_NAME`:
+reads it. One study per store file, named :data:`STUDY_NAME` (a k-fold run adds one per further fold,
+:func:`fold_study_name`):
 
 - each candidate evaluated is one trial, added as soon as its evaluation arrives
   (a killed run loses at most the candidates still computing): COMPLETE with the
@@ -40,6 +41,11 @@ STUDY_NAME = "uav-depth-tune"
 _PROPOSALS = "proposals/"
 
 
+def fold_study_name(fold: int) -> str:
+    """The study of fold ``fold`` (0-based) of a k-fold run: fold 0 is the ordinary :data:`STUDY_NAME`."""
+    return STUDY_NAME if fold == 0 else f"{STUDY_NAME}-fold{fold + 1}"
+
+
 def storage_url(path: str | os.PathLike[str]) -> str:
     """An Optuna storage URL: ``path`` itself when it is one (``sqlite:///...``, ``postgresql://...``),
     else a SQLite file at ``path``."""
@@ -74,12 +80,15 @@ def _get(params: Mapping[str, Any], key: str) -> Any:
 class RunStore:
     """The Optuna study at ``path`` (a file, an Optuna storage URL, or ":memory:" for a throw-away run).
 
+    ``study_name``: :data:`STUDY_NAME`, or :func:`fold_study_name` for the later folds of a k-fold run
+    (one store holds every fold's study).
+
     ``direction``: "minimize" or "maximize" (the fitness's), used when the study is
     created; ``keys``: the tuned schema keys, recorded as each trial's Optuna params.
     """
 
     def __init__(self, path: str | os.PathLike[str] = ":memory:", direction: str = "minimize",
-                 keys: Sequence[str] = ()):
+                 keys: Sequence[str] = (), study_name: str = STUDY_NAME):
         import optuna
 
         optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -91,7 +100,7 @@ class RunStore:
             _refuse_old_format(Path(self.path))
         try:
             self.storage = optuna.storages.InMemoryStorage() if memory else optuna.storages.RDBStorage(self.url)
-            self.study = optuna.create_study(storage=self.storage, study_name=STUDY_NAME, direction=direction,
+            self.study = optuna.create_study(storage=self.storage, study_name=study_name, direction=direction,
                                              load_if_exists=True)
         except Exception as exc:  # SQLAlchemy / Optuna raise many kinds for a file that is not a store
             raise FileFormatError(f"{self.path}: not a usable run store ({type(exc).__name__}: {exc})") from exc

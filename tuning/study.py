@@ -125,8 +125,9 @@ class Study:
 
     def __init__(self, config: StudyConfig, train: FrameSet, executor: Executor, store: RunStore,
                  base: StereoParams, progress: Callable[[int, float], None] | None = None,
-                 stop: threading.Event | None = None, timeout_s: float | None = None):
+                 stop: threading.Event | None = None, timeout_s: float | None = None, frameset: str = "train"):
         self.config, self.train, self.executor, self.store, self.base = config, train, executor, store, base
+        self.frameset = frameset      # the executor's name of ``train`` (a fold's training set: "train1" ...)
         self.timeout_s = timeout_s
         self._deadline = math.inf
         self.timed_out = False
@@ -195,7 +196,7 @@ class Study:
         if n_cached:
             self.progress(n_cached, math.nan)
         keys = list(todo)
-        tasks = [Task(todo[k][0]) for k in keys]   # every executor starts nothing once stop is set
+        tasks = [Task(todo[k][0], self.frameset) for k in keys]   # every executor starts nothing once stop is set
         for j, ev in self.executor.imap(tasks, self.stop):
             key = keys[j]
             params, idx = todo[key]
@@ -421,28 +422,46 @@ def top_candidates(store: RunStore, fitness_name: str, n: int = SELECT_TOP) -> l
 
 
 def select(executor: Executor, fitness_name: str, base: StereoParams, base_train: float,
-           candidates: Sequence[tuple[dict[str, Any], float]], have_holdout: bool) -> Selection:
+           candidates: Sequence[tuple[dict[str, Any], float]], have_holdout: bool, *,
+           train_set: str = "train", holdout_set: str = "holdout",
+           nudge_keys: Sequence[str] | None = None) -> Selection:
     """Score the base and ``candidates`` on the held-out frames; the best non-fragile one wins.
 
+    Fragile: P1/P2 near the cost limit (:func:`fragile_reason`), or, with ``nudge_keys``, a one-step nudge of
+    one of those keys on the training frames loses the candidate's whole gain over the base
+    (``robust.nudge_check``; checked only for a candidate about to win, then the next is tried).
     Without held-out frames the choice falls back to the training value (reports say so).
     Ties keep the earlier row (the base first, then the better training value).
     """
+    from uav_depth.tuning.robust import nudge_check
+
     fitness = FITNESS[fitness_name]
     rows = [{"params": base.to_dict(), "train": base_train}]
     for params, value in candidates:
         if params != rows[0]["params"]:
             rows.append({"params": params, "train": value})
-    held = run_all(executor, [Task(r["params"], "holdout") for r in rows]) if have_holdout else [None] * len(rows)
+    held = run_all(executor, [Task(r["params"], holdout_set) for r in rows]) if have_holdout else [None] * len(rows)
     for r, ev in zip(rows, held):
         r["holdout"] = math.nan if ev is None else (ev.value if ev.ok else fitness.worst)
         r["fragile"] = fragile_reason(params_from_dict(r["params"]))
         r["train_utility"] = fitness.utility(r["train"])
         r["holdout_utility"] = fitness.utility(r["holdout"])
     on = "holdout" if have_holdout else "train"
+    order = sorted(range(1, len(rows)), key=lambda i: (-rows[i][f"{on}_utility"], i))
     winner = 0
-    for i, r in enumerate(rows[1:], 1):
-        if r["fragile"] is None and (winner == 0 or r[f"{on}_utility"] > rows[winner][f"{on}_utility"]):
-            winner = i
+    for i in order:
+        r = rows[i]
+        if r["fragile"] is not None:
+            continue
+        if nudge_keys and r[f"{on}_utility"] > rows[0][f"{on}_utility"]:
+            check = nudge_check(executor, fitness_name, params_from_dict(r["params"]), r["train"], base_train,
+                                nudge_keys, train_set)
+            r["nudges"] = check.values
+            if check.reason is not None:
+                r["fragile"] = check.reason
+                continue
+        winner = i
+        break
     return Selection(rows, winner, on)
 
 

@@ -36,6 +36,11 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "only when it beats the base on them. auto (default): the last third of the sessions "
                         "(30%% of the frames of a single session); none; a fraction (0.3); a directory; or a "
                         "comma list of session names / session/frame keys / frame ids")
+    p.add_argument("--folds", default="auto",
+                   help="k-fold over sessions: each fold searches on the other sessions and chooses on its own; "
+                        "the winner is the fold winner with the best mean held-out score, the gate the "
+                        "cross-validated estimate. auto (default, with --holdout auto): 3 folds when the log has "
+                        "2..8 sessions (k times the search cost), else one split; 1: one split")
     p.add_argument("--force", action="store_true",
                    help="write --out even when the result does not beat the base on the held-out frames")
     p.add_argument("--timeout", type=float, default=None,
@@ -86,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
     import signal
     import sys
     import threading
+    import time
 
     import cv2
     from tqdm import tqdm
@@ -96,14 +102,16 @@ def run(args: argparse.Namespace) -> int:
     from uav_depth.core.params import DEFAULT_PARAMS, load_params, params_from_dict, save_params
 
     from uav_depth.tuning.executor import make_executor
-    from uav_depth.tuning.frames import load_split
+    from uav_depth.core.session import find_sessions
+    from uav_depth.tuning.frames import load_folds, load_split
+    from uav_depth.tuning.robust import cross_select, parse_folds
     from uav_depth.tuning.objective import FITNESS, FLOWN_FITNESS, PAPER_FITNESS
     from uav_depth.tuning.optimizers import make_space
     from uav_depth.tuning.report import MANUAL_BASELINE, comparison, sources_text, write_report
     from uav_depth.tuning.space import describe_space, parse_keys
-    from uav_depth.tuning.store import RunStore
-    from uav_depth.tuning.study import (Study, StudyConfig, TuneInterrupted, choose_under_budget, full_scores,
-                                        result_summary, search_front, select, top_candidates)
+    from uav_depth.tuning.store import RunStore, fold_study_name
+    from uav_depth.tuning.study import (Selection, Study, StudyConfig, TuneInterrupted, choose_under_budget,
+                                        full_scores, result_summary, search_front, select, top_candidates)
 
     if args.max_ms is not None and not args.max_ms > 0:
         raise ConfigError("--max-ms", "must be greater than 0", args.max_ms)
@@ -118,10 +126,18 @@ def run(args: argparse.Namespace) -> int:
     convention = "paper" if metric in PAPER_FITNESS else "bench"
     terminal.phase(f"loading the frames of {args.logdir}")
     base = load_params(args.base) if args.base else DEFAULT_PARAMS
-    train, holdout = load_split(args.logdir, args.holdout, fitness.needs)
-    framesets = {"train": train, "holdout": holdout}
+    k = parse_folds(args.folds, len(find_sessions(args.logdir)), args.holdout)
+    folds = load_folds(args.logdir, k, fitness.needs) if k > 1 else [load_split(args.logdir, args.holdout,
+                                                                                 fitness.needs)]
+    train, holdout = folds[0]
+    set_names = [("train", "holdout")] + [(f"train{j}", f"holdout{j}") for j in range(1, k)]
+    framesets = {}
+    for (tn, hn), (tr, ho) in zip(set_names, folds):
+        framesets[tn], framesets[hn] = tr, ho
     tuned_keys = [d["key"] for d in describe_space(make_space(args.optimizer, keys))["dims"]]
-    store = RunStore(_store_path(args), "minimize" if fitness.direction < 0 else "maximize", tuned_keys)
+    direction = "minimize" if fitness.direction < 0 else "maximize"
+    stores = [RunStore(_store_path(args), direction, tuned_keys, study_name=fold_study_name(j)) for j in range(k)]
+    store = stores[0]
 
     # Signal handlers only set the event; the study stops at the next result and
     # keeps every finished evaluation. A second Ctrl-C interrupts at once.
@@ -132,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
         signal.signal(signum, signal.SIG_DFL if signum != signal.SIGINT else signal.default_int_handler)
 
     previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    total = config.runs * config.budget + 1
+    total = k * (config.runs * config.budget + 1)
     best = {"u": -math.inf}
     try:
         with tqdm(total=total, unit="cand", disable=True if args.no_progress else None, dynamic_ncols=True,
@@ -145,27 +161,53 @@ def run(args: argparse.Namespace) -> int:
 
             executor = make_executor(framesets, metric, args.workers, args.ray_address)
             try:
-                study = Study(config, train, executor, store, base, progress=progress, stop=stop,
-                              timeout_s=args.timeout)
-                study.open(args.resume)
-                result = study.run()
-                bar.close()
-                result.best_params()        # raises when every candidate failed
-                budget = None
-                if args.max_ms is not None:
-                    terminal.phase(f"re-timing the search front under --max-ms {args.max_ms:g}")
-                    choice = choose_under_budget(store, metric, train, args.max_ms)
-                    budget = {"max_ms": args.max_ms, "front": choice.front,
-                              "chosen": None if choice.params is None else
-                              {"value": choice.value, "ms": choice.ms, "params": choice.params.to_dict()},
-                              "reason": choice.reason}
-                    candidates = [] if choice.params is None else [(choice.params.to_dict(), choice.value)]
+                deadline = None if args.timeout is None else time.monotonic() + args.timeout
+                results, selections, budget = [], [], None
+                for j, ((tn, hn), (tr, ho), st) in enumerate(zip(set_names, folds, stores)):
+                    left = None if deadline is None else max(1e-3, deadline - time.monotonic())
+                    study_j = Study(config, tr, executor, st, base, progress=progress, stop=stop, timeout_s=left,
+                                    frameset=tn)
+                    study_j.open(args.resume)
+                    result_j = study_j.run()
+                    if j == k - 1:
+                        bar.close()               # the phases after the last search print below the bar
+                    result_j.best_params()        # raises when every candidate failed
+                    if j == 0:
+                        study, result = study_j, result_j
+                    results.append(result_j)
+                    if args.max_ms is not None:
+                        terminal.phase(f"re-timing the search front under --max-ms {args.max_ms:g}")
+                        choice = choose_under_budget(st, metric, tr, args.max_ms)
+                        if j == 0:
+                            budget = {"max_ms": args.max_ms, "front": choice.front,
+                                      "chosen": None if choice.params is None else
+                                      {"value": choice.value, "ms": choice.ms, "params": choice.params.to_dict()},
+                                      "reason": choice.reason}
+                        candidates = [] if choice.params is None else [(choice.params.to_dict(), choice.value)]
+                    else:
+                        candidates = top_candidates(st, metric)
+                    fold = f" (fold {j + 1} of {k})" if k > 1 else ""
+                    terminal.phase(f"choosing among the best candidates on the {len(ho)} held-out frame(s){fold}"
+                                   if len(ho) else "choosing among the best candidates on the training frames")
+                    selections.append(select(Counted(executor, terminal, "candidates scored"), metric, base,
+                                             result_j.baseline.value, candidates, bool(len(ho)), train_set=tn,
+                                             holdout_set=hn, nudge_keys=tuned_keys))
+                cross = None
+                if k > 1:
+                    terminal.phase(f"scoring the {k} fold winners on every fold's held-out sessions")
+                    cross = cross_select(Counted(executor, terminal, "candidates scored"), metric, base, selections,
+                                         [hn for _, hn in set_names])
+                    rows = [{"params": base.to_dict(), "train": result.baseline.value, "holdout": cross.cv_base,
+                             "fragile": None}]
+                    rows += [{"params": p["params"], "train": selections[p["fold"]].chosen["train"],
+                              "holdout": p["mean"], "fragile": None, "fold": p["fold"] + 1,
+                              "holdout_per_fold": p["holdout"]} for p in cross.pool]
+                    for r in rows:
+                        r["train_utility"], r["holdout_utility"] = (fitness.utility(r["train"]),
+                                                                    fitness.utility(r["holdout"]))
+                    selection = Selection(rows, 0 if cross.winner is None else cross.winner + 1, "holdout")
                 else:
-                    candidates = top_candidates(store, metric)
-                terminal.phase(f"choosing among the best candidates on the {len(holdout)} held-out frame(s)"
-                               if len(holdout) else "choosing among the best candidates on the training frames")
-                selection = select(Counted(executor, terminal, "candidates scored"), metric, base,
-                                   result.baseline.value, candidates, bool(len(holdout)))
+                    selection = selections[0]
                 chosen = params_from_dict(selection.chosen["params"])
                 chosen_value = selection.chosen["train"]
                 front = search_front(store, metric)
@@ -182,13 +224,16 @@ def run(args: argparse.Namespace) -> int:
         for s, h in previous.items():
             signal.signal(s, h)
 
+    # The gate: with folds, also the cross-validated estimate (each fold's winner on its own held-out sessions)
+    # must beat the base's (every number in it held out).
+    beats = selection.beats_base and (cross is None or fitness.utility(cross.cv_tuned) > fitness.utility(cross.cv_base))
     cmp = comparison({n: scores[(0, n)] for n in names}, {n: scores[(1, n)] for n in names})
     summary = result_summary(result)
     summary.update(comparison=cmp, convention=convention, budget=budget or {"max_ms": None, "front": front},
                    chosen={"value": chosen_value, "holdout_value": selection.chosen["holdout"],
                            "params": chosen.to_dict()},
-                   selection={"on": selection.on, "winner": selection.winner, "beats_base": selection.beats_base,
-                              "candidates": selection.rows},
+                   selection={"on": selection.on, "winner": selection.winner, "beats_base": beats,
+                              "candidates": selection.rows, "folds": _folds_summary(selections, folds, cross)},
                    frames={n: framesets[n].keys for n in names}, store=store.path,
                    references={n: framesets[n].reference_sources() for n in names},
                    base=os.path.abspath(args.base) if args.base else MANUAL_BASELINE,
@@ -196,7 +241,10 @@ def run(args: argparse.Namespace) -> int:
     held_base, held_tuned = selection.base["holdout"], selection.chosen["holdout"]
     print(f"{args.optimizer} on {len(train)} train frame(s): {metric} base {result.baseline.value:.4g} -> "
           f"tuned {chosen_value:.4g}"
-          + (f"; held-out ({len(holdout)}): {held_base:.4g} -> {held_tuned:.4g}" if len(holdout) else "")
+          + (f"; held-out ({len(holdout)}): {held_base:.4g} -> {held_tuned:.4g}" if len(holdout) and cross is None
+             else "")
+          + (f"; {k}-fold held-out: cross-validated {cross.cv_base:.4g} -> {cross.cv_tuned:.4g}, chosen mean "
+             f"{held_base:.4g} -> {held_tuned:.4g}" if cross is not None else "")
           + f"  [{result.evaluated} evaluated, {result.cached} cached, {result.wall_s:.0f} s"
           + (", stopped by --timeout" if result.timed_out else "") + "]")
     if "reference" in fitness.needs:
@@ -204,11 +252,17 @@ def run(args: argparse.Namespace) -> int:
                                                for name, sources in summary["references"].items() if sources))
     blocked = f"--max-ms: {budget['reason']}" if budget and budget["reason"] else None
     rejected = None
-    if blocked is None and not selection.beats_base:
+    if blocked is None and not beats:
         where = f"the {len(holdout)} held-out frame(s)" if selection.on == "holdout" else \
             "the training frames (no held-out frame)"
-        rejected = (f"the tuned parameters do not beat the base on {where} "
-                    f"({metric} {selection.chosen[selection.on]:.4g} vs base {selection.base[selection.on]:.4g})")
+        if cross is not None:
+            where = f"the held-out sessions of {k} folds"
+            rejected = (f"the tuned parameters do not beat the base on {where} ({metric} cross-validated "
+                        f"{cross.cv_tuned:.4g} vs base {cross.cv_base:.4g}; chosen, mean held-out "
+                        f"{selection.chosen['holdout']:.4g} vs {selection.base['holdout']:.4g})")
+        else:
+            rejected = (f"the tuned parameters do not beat the base on {where} "
+                        f"({metric} {selection.chosen[selection.on]:.4g} vs base {selection.base[selection.on]:.4g})")
     status = EXIT_ERROR if blocked or (rejected and args.out and not args.force) else 0
     if args.out and blocked is None:
         provenance = {
@@ -218,7 +272,9 @@ def run(args: argparse.Namespace) -> int:
             "baseline_fitness": result.baseline.value, "holdout_fitness": held_tuned,
             "holdout_baseline_fitness": held_base, "chosen_on": selection.on,
             "data": os.path.abspath(args.logdir), "frames": len(train), "frames_digest": study.digest,
-            "holdout": args.holdout, "holdout_frames": len(holdout),
+            "holdout": args.holdout, "holdout_frames": len(holdout), "folds": k,
+            "cv_fitness": None if cross is None else cross.cv_tuned,
+            "cv_baseline_fitness": None if cross is None else cross.cv_base,
             "seed": args.seed, "optimizer": args.optimizer, "population": args.population,
             "generations": args.generations, "runs": args.runs, "best_run": result.best.run,
             "max_ms": args.max_ms, "store": os.path.abspath(store.path), "forced": bool(rejected),
@@ -245,5 +301,18 @@ def run(args: argparse.Namespace) -> int:
         terminal.phase(f"writing the report and its plots into {args.report}")
         write_report(args.report, summary, resolved, [framesets[n] for n in names], base, chosen, points)
         print(f"wrote report {args.report}")
-    store.close()
+    for st in stores:
+        st.close()
     return status
+
+
+def _folds_summary(selections, folds, cross) -> list[dict]:
+    """Per fold: its sessions, and the base's and its winner's train and held-out values (train vs held-out)."""
+    out = []
+    for j, (sel, (tr, ho)) in enumerate(zip(selections, folds)):
+        out.append({"fold": j + 1, "train_frames": tr.keys, "holdout_frames": ho.keys,
+                    "base_train": sel.base["train"], "base_holdout": sel.base["holdout"],
+                    "winner_train": sel.chosen["train"], "winner_holdout": sel.chosen["holdout"],
+                    "beats_base": sel.beats_base,
+                    "rejected": [r["fragile"] for r in sel.rows if r.get("fragile")]})
+    return out

@@ -87,10 +87,14 @@ class FineMatcher:
             lc, rc = cv2.cvtColor(lc, cv2.COLOR_BGR2GRAY), cv2.cvtColor(rc, cv2.COLOR_BGR2GRAY)
         lc, rc = np.ascontiguousarray(lc), np.ascontiguousarray(rc)
         left16 = match_left(self.matchers, lc, rc)
-        inner = (slice(y0 - cy0, y1 - cy0), slice(x0 - cx0, x1 - cx0))
-        measured = to_float(left16, 0)[inner] + np.float32(d0)
+        # The box in the crop; columns of the box left of the crop (nearer the image's edge than d0) stay NaN.
+        ix0 = max(x0, cx0)
+        inner = (slice(y0 - cy0, y1 - cy0), slice(ix0 - cx0, x1 - cx0))
+        measured = np.full((y1 - y0, x1 - x0), np.nan, np.float32)
+        measured[:, ix0 - x0:] = to_float(left16, 0)[inner] + np.float32(d0)
         conf = None
         if self.matchers.right is not None:
-            conf = np.clip(lr_confidence(left16, match_right(self.matchers, lc, rc), self.params.sgbm)[inner]
-                           * np.float32(1.0 / 255.0), 0.0, 1.0)
+            conf = np.zeros((y1 - y0, x1 - x0), np.float32)
+            conf[:, ix0 - x0:] = np.clip(lr_confidence(left16, match_right(self.matchers, lc, rc),
+                                                       self.params.sgbm)[inner] * np.float32(1.0 / 255.0), 0.0, 1.0)
         return FineMatch(box, measured, conf, float(d0), float(d0 + self.num - 1))

@@ -87,7 +87,10 @@ def test_cli_bench_json_and_table(tmp_path):
     proc = subprocess.run([*args, "--json"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     doc = json.loads(proc.stdout)
-    assert [v["name"] for v in doc["variants"]] == ["naive", "flight+WLS", "flight"]
+    assert [v["name"] for v in doc["variants"]] == ["naive", "flight+WLS", "flight-noSmooth", "flight"]
+    wls, no_smooth = doc["variants"][1], doc["variants"][2]      # the WLS smoothing's lever alone
+    assert "wls" in wls["stages_median_ms"] and "wls" not in no_smooth["stages_median_ms"]
+    assert no_smooth["median_abs_rel_error"] == wls["median_abs_rel_error"]    # ranging never used the smoothing
     assert doc["machine"]["cores"] >= 1 and doc["machine"]["opencv"]
     assert "ranging_floor" in doc and doc["frames"]["n"] == 2
     table = format_report(doc)

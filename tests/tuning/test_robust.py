@@ -1,0 +1,136 @@
+"""The choice's generalisation checks: k-fold by session and the perturbation (fragility) check."""
+
+import json
+import subprocess
+import sys
+
+import optuna
+import pytest
+
+from uav_depth.core.errors import ConfigError
+from uav_depth.core.params import DEFAULT_PARAMS
+from uav_depth.sim.scene import SceneConfig, write_session
+from uav_depth.tuning.objective import OK, Evaluation
+from uav_depth.tuning.robust import auto_folds, cross_select, nudges, parse_folds
+from uav_depth.tuning.store import fold_study_name, storage_url
+from uav_depth.tuning.study import select
+
+from .conftest import TINY, TINY_BASE
+
+
+class Scripted:
+    """An executor whose fitness is a function of (frame set name, parameters): the choice's logic alone."""
+
+    workers, kind = 1, "scripted"
+
+    def __init__(self, fn):
+        self.fn, self.calls = fn, []
+
+    def imap(self, tasks, stop=None):
+        for i, t in enumerate(tasks):
+            self.calls.append((t.frameset, t.params["sgbm"]["p2"]))
+            yield i, Evaluation(OK, float(self.fn(t.frameset, t.params["sgbm"])))
+
+    def close(self):
+        pass
+
+
+def _with(p1, p2):
+    return DEFAULT_PARAMS.replace(**{"sgbm.p1": p1, "sgbm.p2": p2}).to_dict()
+
+
+def test_a_candidate_on_a_cliff_loses_to_the_next_one():
+    # MAE-like fitness (smaller is better): base 2.0 everywhere. Candidate A (p2 5000) is best held out, but its
+    # p2 nudged +10 % (5500) collapses to 9.0 on the training frames. Candidate B (p2 3000) is smooth around it.
+    def fn(frameset, sg):
+        if sg["p2"] == 2400:
+            return 2.0
+        if sg["p2"] in (5000,):
+            return 1.0 if frameset == "holdout" else 1.2
+        if sg["p2"] == 5500:
+            return 9.0
+        return 1.5 if sg["p2"] >= 2700 and sg["p2"] <= 3300 else 1.9
+    ex = Scripted(fn)
+    cands = [(_with(600, 5000), 1.2), (_with(600, 3000), 1.5)]
+    plain = select(ex, "flown", DEFAULT_PARAMS, 2.0, cands, True)
+    assert plain.chosen["params"]["sgbm"]["p2"] == 5000          # without the check the cliff wins
+    sel = select(ex, "flown", DEFAULT_PARAMS, 2.0, cands, True, nudge_keys=("sgbm.p1", "sgbm.p2"))
+    assert sel.chosen["params"]["sgbm"]["p2"] == 3000
+    rejected = sel.rows[1]
+    assert "fragile: sgbm.p2+500" in rejected["fragile"] and rejected["nudges"]["sgbm.p2+500"] == 9.0
+    assert ("train", 5500) in ex.calls and ("holdout", 5500) not in ex.calls   # nudges on the training frames
+
+
+def test_nudges_step_each_key_and_stay_on_the_schema():
+    p = DEFAULT_PARAMS.replace(**{"sgbm.block_size": 3, "sgbm.p1": 100, "sgbm.p2": 101})
+    labels = dict(nudges(p, ("sgbm.p1", "sgbm.p2", "sgbm.block_size", "sgbm.uniqueness_ratio", "wls.lambda")))
+    assert set(labels) == {"sgbm.p1-10", "sgbm.p2+10", "sgbm.block_size-2", "sgbm.block_size+2",
+                           "sgbm.uniqueness_ratio-1", "sgbm.uniqueness_ratio+1"}   # p1+10 >= p2, p2-10 <= p1
+    assert labels["sgbm.block_size-2"].sgbm.block_size == 1
+
+
+def test_cross_select_takes_the_fold_winner_best_on_the_mean_held_out_score():
+    # fold 0's winner (p2 3000) is best on its own fold, worse on the other two; fold 1's (p2 4000) is good everywhere
+    table = {2400: (2.0, 2.0, 2.0), 3000: (1.0, 3.0, 3.0), 4000: (1.5, 1.4, 1.6)}
+    ex = Scripted(lambda fs, sg: table[sg["p2"]][{"holdout": 0, "holdout1": 1, "holdout2": 2, "holdout3": 2}.get(fs, 0)])
+
+    class Sel:
+        def __init__(self, p2, fold):
+            self.base = {"params": DEFAULT_PARAMS.to_dict(), "train": 2.0, "holdout": 2.0}
+            self.chosen = {"params": _with(600, p2), "train": 1.0, "holdout": table[p2][fold]}
+            self.winner, self.beats_base = 1, True
+    table[5000] = (0.1, 0.1, 2.5)
+    lost = Sel(5000, 2)
+    lost.beats_base = False        # it lost on its own fold: never pooled, whatever it scores elsewhere
+    cross = cross_select(ex, "flown", DEFAULT_PARAMS, [Sel(3000, 0), Sel(4000, 1), Sel(4000, 2), lost],
+                         ["holdout", "holdout1", "holdout2", "holdout3"])
+    assert len(cross.pool) == 2 and cross.pool[cross.winner]["params"]["sgbm"]["p2"] == 4000
+    assert cross.pool[0]["holdout"] == [1.0, 3.0, 3.0, 3.0]
+    assert cross.pool[cross.winner]["mean"] == pytest.approx((1.5 + 1.4 + 1.6 + 1.6) / 4)
+    assert cross.cv_tuned == pytest.approx((1.0 + 1.4 + 1.6 + 2.5) / 4) and cross.cv_base == 2.0
+
+
+def test_folds_are_auto_where_sessions_are_few_and_checked():
+    assert [auto_folds(n) for n in (1, 2, 3, 6, 8, 9)] == [1, 2, 3, 3, 3, 1]
+    assert parse_folds("auto", 6, "auto") == 3 and parse_folds("auto", 6, "0.3") == 1 and parse_folds("1", 6, "auto") == 1
+    for text, holdout, match in (("0", "auto", "at least 1"), ("4", "auto", "must not exceed"),
+                                 ("2", "none", "needs --holdout auto")):
+        with pytest.raises(ConfigError, match=match):
+            parse_folds(text, 3, holdout)
+
+
+@pytest.fixture(scope="module")
+def three_sessions(tmp_path_factory):
+    from uav_depth.core.params import save_params
+
+    root = tmp_path_factory.mktemp("folds")
+    for i, name in enumerate(("a", "b", "c")):
+        write_session(root / "log" / name, 2, 11 + i, SceneConfig(**TINY))
+    save_params(TINY_BASE, root / "base.yaml")
+    return root
+
+
+def test_tune_k_fold_by_session_searches_each_fold_and_reports_train_vs_held_out(three_sessions, tmp_path):
+    root = three_sessions
+    proc = subprocess.run([sys.executable, "-m", "uav_depth.cli.main", "tune", root / "log", "--base",
+                           root / "base.yaml", "--optimizer", "random", "--population", "4", "--generations", "1",
+                           "--workers", "1", "--report", tmp_path / "rep", "--out", tmp_path / "p.yaml",
+                           "--no-progress", "--force"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "3-fold held-out: cross-validated" in proc.stdout
+    summary = json.loads((tmp_path / "rep" / "summary.json").read_text())
+    folds = summary["selection"]["folds"]
+    assert [f["holdout_frames"] for f in folds] == [["a/000000", "a/000001"], ["b/000000", "b/000001"],
+                                                    ["c/000000", "c/000001"]]
+    for f in folds:
+        assert not set(f["train_frames"]) & set(f["holdout_frames"]) and len(f["train_frames"]) == 4
+        for key in ("base_train", "winner_train", "base_holdout", "winner_holdout"):
+            assert isinstance(f[key], float)
+    cands = summary["selection"]["candidates"]
+    for row in cands[1:]:
+        assert row["holdout"] == pytest.approx(sum(row["holdout_per_fold"]) / 3)
+    assert cands[0]["holdout"] == pytest.approx(sum(f["base_holdout"] for f in folds) / 3)
+    studies = {s.study_name: s.n_trials for s in optuna.get_all_study_summaries(storage_url(tmp_path / "rep" /
+                                                                                            "store.sqlite"))}
+    assert set(studies) == {fold_study_name(j) for j in range(3)} and all(n >= 2 for n in studies.values())
+    assert "3-fold by session" in (tmp_path / "rep" / "table.md").read_text()

@@ -1,0 +1,177 @@
+"""Generalisation checks of the choice: k-fold held-out sessions and the perturbation (fragility) check.
+
+**Folds.** With few sessions, one held-out split leaves the choice to one or two
+scenes. ``--folds`` (auto: :func:`auto_folds`) splits the sessions into k folds
+(fold j holds out sessions j, j+k, j+2k ... in name order); each fold runs its own
+search on the other sessions and chooses its winner on its own held-out sessions
+(``study.select``: clean, those frames were never trained on). The winner of the
+whole run is the fold winner with the best mean held-out score over all folds,
+among those that beat the base on their own held-out sessions
+(:func:`cross_select`); the cross-validated estimate the gate uses is the mean over
+folds of each fold's winner on its own held-out sessions against the base there
+(every number in it is held out).
+
+**Fragility.** Before a candidate may win, :func:`nudge_check` scores it on the
+training frames with each key nudged one step either way (P1, P2 and the speckle
+window x0.9 / x1.1, block size +-2, uniqueness +-1, speckle range and
+disp12MaxDiff +-1): when one nudge loses the whole gain the candidate had over the
+base (or fails), the candidate sits on a cliff and the next one is tried.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+from uav_depth.core.errors import ConfigError
+from uav_depth.core.params import StereoParams, params_from_dict
+
+from uav_depth.tuning.executor import Executor, run_all
+from uav_depth.tuning.objective import FITNESS, Task
+
+#: auto: k-fold over sessions when a log has at least 2 and at most this many sessions (else one split).
+FEW_SESSIONS = 8
+#: Folds auto uses (at most one per session).
+AUTO_FOLDS = 3
+#: Relative step of the multiplicative nudges, and the additive ones (key -> step).
+NUDGE_FACTOR = 0.1
+NUDGE_STEPS: Mapping[str, int] = {"sgbm.block_size": 2, "sgbm.uniqueness_ratio": 1, "sgbm.speckle_range": 1,
+                                  "sgbm.disp12_max_diff": 1}
+NUDGE_SCALED: tuple[str, ...] = ("sgbm.p1", "sgbm.p2", "sgbm.speckle_window_size")
+
+
+def parse_folds(text: str | None, n_sessions: int, holdout: str | None) -> int:
+    """``--folds``: an integer >= 1, or auto (None): :func:`auto_folds` with ``--holdout auto``, else 1."""
+    if text is None or text == "auto":
+        return auto_folds(n_sessions) if holdout == "auto" else 1
+    try:
+        k = int(text)
+    except ValueError:
+        k = 0
+    if k < 1:
+        raise ConfigError("--folds", "must be auto or an integer of at least 1", text)
+    if k > 1 and holdout != "auto":
+        raise ConfigError("--folds", "needs --holdout auto (folds are made of sessions)", text)
+    if k > 1 and k > n_sessions:
+        raise ConfigError("--folds", f"must not exceed the number of sessions ({n_sessions})", text)
+    return k
+
+
+def auto_folds(n_sessions: int) -> int:
+    """k-fold where sessions are few (2..FEW_SESSIONS: min(3, n) folds); one split otherwise."""
+    return min(AUTO_FOLDS, n_sessions) if 2 <= n_sessions <= FEW_SESSIONS else 1
+
+
+def fold_of(index: int, k: int) -> int:
+    """The fold that holds out the session at ``index`` (name order)."""
+    return index % k
+
+
+def nudges(params: StereoParams, keys: Sequence[str]) -> list[tuple[str, StereoParams]]:
+    """(label, params) for each valid one-step nudge of ``keys`` (those of NUDGE_STEPS / NUDGE_SCALED)."""
+    out = []
+    for key in keys:
+        section, name = key.split(".", 1)
+        value = getattr(getattr(params, section), name, None)
+        if not isinstance(value, int) or isinstance(value, bool):
+            continue
+        if key in NUDGE_SCALED:
+            step = max(1, round(abs(value) * NUDGE_FACTOR))
+        elif key in NUDGE_STEPS:
+            step = NUDGE_STEPS[key]
+        else:
+            continue
+        for sign in (-1, +1):
+            try:
+                nudged = params.replace(**{key: value + sign * step})
+            except ConfigError:
+                continue              # off the schema (p1 >= p2, block size 1 - 2 ...): no such neighbour
+            out.append((f"{key}{'+' if sign > 0 else '-'}{step}", nudged))
+    return out
+
+
+@dataclass(frozen=True)
+class NudgeResult:
+    """The worst one-step neighbour of a candidate on the training frames."""
+
+    reason: str | None          # why it is fragile, or None
+    worst: str | None           # the label of the worst nudge
+    worst_value: float
+    values: dict[str, float]    # every nudge's training value
+
+
+def nudge_check(executor: Executor, fitness_name: str, params: StereoParams, value: float, base_value: float,
+                keys: Sequence[str], train_set: str = "train") -> NudgeResult:
+    """Score ``params`` nudged on ``train_set``; fragile when a nudge fails or loses the whole gain over the base.
+
+    ``value`` and ``base_value``: the candidate's and the base's training fitness.
+    """
+    fitness = FITNESS[fitness_name]
+    cands = nudges(params, keys)
+    if not cands:
+        return NudgeResult(None, None, math.nan, {})
+    evs = run_all(executor, [Task(p.to_dict(), train_set) for _, p in cands])
+    values = {label: (ev.value if ev.ok else fitness.worst) for (label, _), ev in zip(cands, evs)}
+    worst = min(values, key=lambda k: fitness.utility(values[k]))
+    wv = values[worst]
+    reason = None
+    if not math.isfinite(wv) or fitness.utility(wv) < fitness.utility(base_value):
+        reason = (f"fragile: {worst} on the training frames scores {fitness_name} {wv:.4g}, worse than the base's "
+                  f"{base_value:.4g} (the candidate: {value:.4g}): its gain sits on a cliff")
+    return NudgeResult(reason, worst, wv, values)
+
+
+@dataclass(frozen=True)
+class CrossSelection:
+    """The winner over k folds. ``folds``: per fold, the base's and the fold winner's train and held-out values
+    (``study.Selection`` rows); ``pool``: each distinct fold winner that beat the base on its own held-out sessions, with its held-out value on every fold and the
+    mean; ``winner``: index into pool, or None (no fold found a non-fragile candidate better than its base)."""
+
+    folds: list[dict[str, Any]]
+    pool: list[dict[str, Any]]
+    winner: int | None
+    base_holdout: list[float]
+
+    @property
+    def cv_base(self) -> float:
+        return float(sum(self.base_holdout) / len(self.base_holdout))
+
+    @property
+    def cv_tuned(self) -> float:
+        """Mean over folds of each fold's own winner on its own held-out sessions (every number held out)."""
+        return float(sum(f["chosen"]["holdout"] for f in self.folds) / len(self.folds))
+
+
+def cross_select(executor: Executor, fitness_name: str, base: StereoParams, selections: Sequence[Any],
+                 holdout_sets: Sequence[str]) -> CrossSelection:
+    """Among the fold winners (``study.Selection`` of each fold), the one with the best mean held-out score over
+    the folds. A fold winner's score on another fold's held-out sessions is scored here (those sessions were in its
+    fold's training set: the choice uses the mean, the gate the clean cross-validated estimate)."""
+    fitness = FITNESS[fitness_name]
+    folds = [{"base": s.base, "chosen": s.chosen, "beats_base": s.beats_base, "winner": s.winner} for s in selections]
+    base_h = [s.base["holdout"] for s in selections]
+    pool: list[dict[str, Any]] = []
+    for j, s in enumerate(selections):
+        if not s.beats_base:
+            continue                  # it lost to the base on its own held-out sessions: it may not win elsewhere
+        params = s.chosen["params"]
+        if any(p["params"] == params for p in pool):
+            continue
+        pool.append({"params": params, "fold": j, "holdout": [math.nan] * len(selections)})
+    tasks, index = [], []
+    for i, p in enumerate(pool):
+        for j, name in enumerate(holdout_sets):
+            if j == p["fold"]:
+                p["holdout"][j] = selections[j].chosen["holdout"]
+            else:
+                tasks.append(Task(p["params"], name))
+                index.append((i, j))
+    for (i, j), ev in zip(index, run_all(executor, tasks)):
+        pool[i]["holdout"][j] = ev.value if ev.ok else fitness.worst
+    for p in pool:
+        p["mean"] = float(sum(p["holdout"]) / len(p["holdout"]))
+        p["utility"] = fitness.utility(p["mean"])
+        params_from_dict(p["params"])        # a pooled winner is a valid parameter set
+    winner = max(range(len(pool)), key=lambda i: (pool[i]["utility"], -i)) if pool else None
+    return CrossSelection(folds, pool, winner, base_h)
