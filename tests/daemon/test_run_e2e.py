@@ -174,7 +174,10 @@ def test_static_branch_rate_distance_fields_notify_shutdown_and_logs(tmp_path, r
         assert 1 <= m.covariance <= 254 and 2 <= m.signal_quality <= 100
     fb = 350.0 * 0.063
     m = msgs[-1]
-    assert (m.min_distance, m.max_distance) == (math.floor(100 * fb / 63 + 1e-6) - 1, 1000)
+    # the stated range ends where even pixel locking (1/sqrt(12) px) gives sigma_z = z^2/fb * sigma_d above
+    # what the covariance field can carry (sqrt(254) cm): z = sqrt(0.159 m * fb / (1/sqrt(12) px)) = 3.48 m
+    precise_cm = math.floor(100 * math.sqrt(math.sqrt(254) / 100 * fb * math.sqrt(12)))
+    assert (m.min_distance, m.max_distance) == (math.floor(100 * fb / 63 + 1e-6) - 1, min(1000, precise_cm))
     assert (m.type, m.id, m.orientation) == (4, 1, 0)
     assert m.horizontal_fov == pytest.approx(math.atan(106.5 / 350) + math.atan(106.5 / 350), rel=0.01)
     assert m.vertical_fov == pytest.approx(2 * math.atan(60 / 350), rel=0.02)
