@@ -9,6 +9,14 @@ the tuned file are then measured as the daemon flies on the leafy suite's own sc
 0..``--scenes``-1 (never trained on): pipeline, Ranger, DISTANCE_SENSOR report.
 
     nice python bench/tune_leafy.py [--train 8] [--scenes 30] [--population 10 --generations 6]
+                                    [--also LABEL:FILE ...]
+
+Columns: the mean branch error (plain, symmetric; a miss = 100 %), the safety-weighted
+one the flown fitness uses (``metrics.safe_branch_error``: farther than the truth by
+more than 2 % costs 100 % + the error), and the counts of scenes without a
+measurement and read farther than the truth by more than 2 % and 5 %. ``--also``
+measures other parameter files in the same run (e.g. one tuned by an earlier fitness).
+The tune runs with ``--force``; when its gate refused, the refusal is printed.
 """
 
 from __future__ import annotations
@@ -28,7 +36,7 @@ from scenebench import FLIGHT_FILE, Measurer, fmt_pct, rel_err, render_cached
 from uav_depth.cli.benchmark import machine_line
 from uav_depth.core.params import load_params
 from uav_depth.sim.scene import SceneConfig
-from uav_depth.tuning.metrics import branch_error
+from uav_depth.tuning.metrics import FARTHER_TOL_PCT, branch_error, safe_branch_error
 
 #: Training scenes are drawn from this index on (the suite uses 0..N-1).
 TRAIN_FROM = 1000
@@ -53,14 +61,16 @@ def write_sessions(root: Path, n: int) -> Path:
 
 def measure(params_file: Path, scenes: int) -> dict:
     meas = Measurer(load_params(params_file), SceneConfig())
-    errs, pct = [], []
+    errs, pct, safe = [], [], []
     for i in range(scenes):
         fr = render_cached(scene(i))
         out = meas.measure(fr.left, fr.right)
         errs.append(rel_err(out["reported_m"], fr.truth_m))
         pct.append(branch_error(out["reported_m"], fr.truth_m))
+        safe.append(safe_branch_error(out["reported_m"], fr.truth_m))
     got = [abs(e) for e in errs if e is not None]
-    return {"mean_branch_err_pct": float(np.mean(pct)), "median_abs_err": float(np.median(got)) if got else None,
+    return {"mean_branch_err_pct": float(np.mean(pct)), "mean_safe_err_pct": float(np.mean(safe)),
+            "farther_2pct": sum(e is not None and e > FARTHER_TOL_PCT / 100.0 for e in errs), "median_abs_err": float(np.median(got)) if got else None,
             "mean_abs_err": float(np.mean(got)) if got else None, "no_measurement": sum(e is None for e in errs),
             "farther_5pct": sum(e is not None and e > 0.05 for e in errs), "per_scene": errs}
 
@@ -74,6 +84,8 @@ def main() -> int:
     ap.add_argument("--generations", type=int, default=6)
     ap.add_argument("--workers", default="2")
     ap.add_argument("--metric", default="flown")
+    ap.add_argument("--also", action="append", default=[], metavar="LABEL:FILE",
+                    help="measure this parameter file too, in the same run (repeatable)")
     args = ap.parse_args()
     t0 = time.perf_counter()
     work = Path(args.work)
@@ -92,6 +104,9 @@ def main() -> int:
     summary = json.loads((report / "summary.json").read_text())
     sel = summary["selection"]
     print(proc.stdout.strip().splitlines()[0])
+    refused = [ln for ln in proc.stdout.splitlines() + proc.stderr.splitlines() if "--force" in ln]
+    if refused:
+        print("gate (overridden by --force here): " + refused[0].strip())
     print(f"tuned on {args.train} leafy scenes ({TRAIN_FROM}..{TRAIN_FROM + args.train - 1}) in {tune_s:.0f} s, "
           f"{args.population} x {args.generations} per fold, {len(sel.get('folds') or [1])} fold(s); gate: "
           f"{'beats' if sel['beats_base'] else 'does NOT beat'} the base held out; chosen sgbm "
@@ -100,12 +115,16 @@ def main() -> int:
         print(f"  fold {f['fold']}: {args.metric} train {f['base_train']:.3f} -> {f['winner_train']:.3f}, "
               f"held-out {f['base_holdout']:.3f} -> {f['winner_holdout']:.3f}")
     rows = {"flight file": measure(FLIGHT_FILE, args.scenes), "tuned flight file": measure(out, args.scenes)}
+    for spec in args.also:
+        label, _, path = spec.partition(":")
+        rows[label] = measure(Path(path), args.scenes)
     print(f"\nleafy suite scenes 0..{args.scenes - 1} (never trained on), as the daemon flies and reports:")
-    print(f"{'params':18s} {'mean err (miss=100%)':>20s} {'median |e|':>10s} {'mean |e|':>9s} {'no meas':>7s} "
-          f"{'farther>5%':>10s}")
+    print(f"{'params':18s} {'mean err (miss=100%)':>20s} {'safety-weighted':>15s} {'median |e|':>10s} "
+          f"{'mean |e|':>9s} {'no meas':>7s} {'farther>2%':>10s} {'farther>5%':>10s}")
     for name, r in rows.items():
-        print(f"{name:18s} {r['mean_branch_err_pct']:19.2f}% {fmt_pct(r['median_abs_err']):>10s} "
-              f"{fmt_pct(r['mean_abs_err']):>9s} {r['no_measurement']:7d} {r['farther_5pct']:10d}")
+        print(f"{name:18s} {r['mean_branch_err_pct']:19.2f}% {r['mean_safe_err_pct']:14.2f}% "
+              f"{fmt_pct(r['median_abs_err']):>10s} {fmt_pct(r['mean_abs_err']):>9s} {r['no_measurement']:7d} "
+              f"{r['farther_2pct']:10d} {r['farther_5pct']:10d}")
     print(f"\ntotal {time.perf_counter() - t0:.0f} s")
     return 0
 

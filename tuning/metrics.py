@@ -55,7 +55,7 @@ METRIC_NAMES = {"paper": ("mse", "psnr", "ssim", "bad1", "bad2", "valid"),
                 "bench": ("mae", "rmse", "bad1", "bad2", "bad4", "psnr", "density")}
 #: Direction of each metric: +1 larger is better, -1 smaller is better.
 DIRECTION = {"mse": -1, "psnr": +1, "ssim": +1, "bad1": -1, "bad2": -1, "bad4": -1, "valid": +1, "mae": -1,
-             "rmse": -1, "density": +1, "branch": -1}
+             "rmse": -1, "density": +1, "branch": -1, "branch_safe": -1, "farther": -1}
 
 
 @dataclass(frozen=True)
@@ -223,8 +223,45 @@ def bench_scores(reference: np.ndarray, estimate: np.ndarray, peak_px: float, st
 BRANCH_MISS_PCT = 100.0
 
 
-def branch_error(estimate_m: float | None, truth_m: float) -> float:
-    """Relative branch-distance error in %, capped at BRANCH_MISS_PCT; no measurement costs BRANCH_MISS_PCT."""
+#: A reading farther than the truth by more than this (%) is *farther*: the unsafe direction. 2 % is the
+#: tolerance the ranging's own checks use (docs/ranging.md: "0 farther than 2 %"); within it a reading is
+#: as good as the matcher's sub-pixel noise allows, beyond it the drone is told there is room that is not there.
+FARTHER_TOL_PCT = 2.0
+
+
+def branch_signed(estimate_m: float | None, truth_m: float) -> float:
+    """Signed branch-distance error in %: positive = read farther than the truth; NaN when nothing was measured."""
     if estimate_m is None or not math.isfinite(estimate_m):
+        return math.nan
+    return float((estimate_m - truth_m) / truth_m * 100.0)
+
+
+def branch_error(estimate_m: float | None, truth_m: float) -> float:
+    """Relative branch-distance error in %, symmetric, capped at BRANCH_MISS_PCT; no measurement costs BRANCH_MISS_PCT.
+
+    The plain error, reported beside :func:`safe_branch_error` (which the flown fitnesses use)."""
+    signed = branch_signed(estimate_m, truth_m)
+    return BRANCH_MISS_PCT if math.isnan(signed) else float(min(abs(signed), BRANCH_MISS_PCT))
+
+
+def is_farther(estimate_m: float | None, truth_m: float, tol_pct: float = FARTHER_TOL_PCT) -> bool:
+    """True when a reading is farther than the truth by more than ``tol_pct`` % (a miss is not farther)."""
+    return branch_signed(estimate_m, truth_m) > tol_pct
+
+
+def safe_branch_error(estimate_m: float | None, truth_m: float) -> float:
+    """The safety-weighted branch error in % (the flown fitnesses' and the reports' one definition).
+
+    - nearer, or farther by at most FARTHER_TOL_PCT: the plain error (capped at BRANCH_MISS_PCT);
+    - no measurement: BRANCH_MISS_PCT, as :func:`branch_error`;
+    - farther by more than FARTHER_TOL_PCT: BRANCH_MISS_PCT + the error (capped at BRANCH_MISS_PCT), i.e.
+      always more than a miss. A miss sends nothing and the flight controller knows it is blind (the wire
+      contract); a farther reading tells it the branch is beyond where it is, so the tuner must never trade
+      a miss for one. The overshoot added on top keeps a gradient: less far is less bad.
+    """
+    signed = branch_signed(estimate_m, truth_m)
+    if math.isnan(signed):
         return BRANCH_MISS_PCT
-    return float(min(abs(estimate_m - truth_m) / truth_m * 100.0, BRANCH_MISS_PCT))
+    if signed > FARTHER_TOL_PCT:
+        return BRANCH_MISS_PCT + float(min(signed, BRANCH_MISS_PCT))
+    return float(min(abs(signed), BRANCH_MISS_PCT))

@@ -113,7 +113,7 @@ def _flown(metric: str) -> Callable[[FrameData, DisparityResult, StereoParams], 
     def score(frame: FrameData, res: DisparityResult, params: StereoParams) -> float:
         value = bench(frame, flown_map(res), ranging_box(frame, params))[metric]
         if frame.has_branch:
-            value += BRANCH_PX_PER_PCT * _branch(frame, res, params)
+            value += BRANCH_PX_PER_PCT * _branch(frame, res, params)   # safety-weighted: farther costs more
         return value
     return score
 
@@ -123,18 +123,24 @@ def _ref(fn: Callable[[np.ndarray, np.ndarray], float]) -> Callable[[FrameData, 
                                                          frame.reference, res.disparity))
 
 
-def branch_measurement(frame: FrameData, res: DisparityResult, params: StereoParams) -> tuple[float | None, float]:
-    """The daemon's own ranging stage on this result: (distance m or None, error % against the frame's truth)."""
+def branch_distance(frame: FrameData, res: DisparityResult, params: StereoParams) -> float | None:
+    """The daemon's own ranging stage on this result: the branch distance in m, None when it measured nothing."""
     h, w = frame.left.shape[:2]
     cal = Calibration(focal_px=frame.focal_px, baseline_m=frame.baseline_m, width=w, height=h)
     roi = resolve_roi(frame.roi, w, h)
-    m = Ranger(RangingConfig(roi=roi), cal, roi, params).measure(res)
-    return m.distance_m, metrics.branch_error(m.distance_m, frame.branch_distance_m)
+    return Ranger(RangingConfig(roi=roi), cal, roi, params).measure(res).distance_m
+
+
+def branch_measurement(frame: FrameData, res: DisparityResult, params: StereoParams) -> tuple[float | None, float]:
+    """(distance m or None, plain symmetric error % against the frame's truth: metrics.branch_error)."""
+    distance = branch_distance(frame, res, params)
+    return distance, metrics.branch_error(distance, frame.branch_distance_m)
 
 
 def _branch(frame: FrameData, res: DisparityResult, params: StereoParams) -> float:
-    """The daemon's own ranging stage on this result, against the frame's truth."""
-    return branch_measurement(frame, res, params)[1]
+    """The daemon's own ranging stage on this result, against the frame's truth, safety-weighted
+    (metrics.safe_branch_error: a reading farther than the truth by more than 2 % costs more than a miss)."""
+    return metrics.safe_branch_error(branch_distance(frame, res, params), frame.branch_distance_m)
 
 
 def _selfsup(frame: FrameData, res: DisparityResult, params: StereoParams) -> float:
@@ -148,7 +154,8 @@ def _selfsup(frame: FrameData, res: DisparityResult, params: StereoParams) -> fl
 FITNESS: dict[str, Fitness] = {
     "flown": Fitness("flown", -1, ("reference",), _flown("mae"),
                      "what flies: mean absolute error (px, benchmark convention) of the confident measured pixels "
-                     f"in the ranging region, + {BRANCH_PX_PER_PCT} x the branch-distance error (%) where known"),
+                     f"in the ranging region, + {BRANCH_PX_PER_PCT} x the safety-weighted branch-distance error (%) "
+                     "where known (farther than the truth by > 2 % costs more than a miss)"),
     "flown-bad2": Fitness("flown-bad2", -1, ("reference",), _flown("bad2"),
                           "as flown, bad-2 (%) instead of the mean absolute error"),
     "mse": Fitness("mse", -1, ("reference",), _ref(metrics.mse), "mean squared disparity error, px^2"),
@@ -157,7 +164,8 @@ FITNESS: dict[str, Fitness] = {
     "bad2": Fitness("bad2", -1, ("reference",), _ref(lambda r, e: metrics.bad(r, e, 2.0)),
                     "% of reference pixels off by more than 2 px"),
     "branch": Fitness("branch", -1, ("branch",), _branch,
-                      "relative error of the daemon's branch distance (its ranging stage) against the truth, %"),
+                      "relative error of the daemon's branch distance (its ranging stage) against the truth, %, "
+                      "safety-weighted (metrics.safe_branch_error)"),
     "selfsup": Fitness("selfsup", -1, (), _selfsup, "reference-free loss (uav_depth.tuning.selfsup)"),
 }
 
@@ -204,8 +212,10 @@ def _frame_metrics(frame: FrameData, res: DisparityResult, params: StereoParams,
 
     bench: the flown map (:func:`flown_map`) inside the scored box; paper: the WLS map, as the paper scores it.
     The box: ``score_roi`` (fractions, as compute.roi) when given, so two files are compared in one box, else
-    the candidate's own. Where the frame knows the branch truth: ``branch`` (error %), ``truth_m``,
-    ``branch_m`` (the daemon's ranging, NaN when it measured nothing).
+    the candidate's own. Where the frame knows the branch truth: ``branch`` (the plain symmetric error %),
+    ``branch_safe`` (the safety-weighted one the flown fitnesses use), ``farther`` (1 when read farther than
+    the truth by more than metrics.FARTHER_TOL_PCT, else 0), ``truth_m``, ``branch_m`` (the daemon's ranging,
+    NaN when it measured nothing).
     """
     out: dict[str, float] = {}
     if frame.reference is not None:
@@ -216,8 +226,10 @@ def _frame_metrics(frame: FrameData, res: DisparityResult, params: StereoParams,
         else:
             out.update(metrics.score(*metrics.in_box(box, frame.reference, res.disparity)).as_dict())
     if frame.has_branch:
-        distance, err = branch_measurement(frame, res, params)
-        out.update(branch=err, truth_m=float(frame.branch_distance_m),
+        distance = branch_distance(frame, res, params)
+        truth = frame.branch_distance_m
+        out.update(branch=metrics.branch_error(distance, truth), branch_safe=metrics.safe_branch_error(distance, truth),
+                   farther=float(metrics.is_farther(distance, truth)), truth_m=float(truth),
                    branch_m=math.nan if distance is None else float(distance))
     return out
 

@@ -33,7 +33,8 @@ from uav_depth.tuning.objective import FITNESS, Evaluation, flown_map
 
 #: The paper's reported change of its tuned parameters against its manual configuration, %.
 PAPER_CHANGE = {"mse": -42.86, "psnr": 8.47, "ssim": 28.52}
-TABLE_METRICS = ("mae", "rmse", "mse", "psnr", "ssim", "bad1", "bad2", "bad4", "branch", "density", "valid")
+TABLE_METRICS = ("mae", "rmse", "mse", "psnr", "ssim", "bad1", "bad2", "bad4", "branch", "branch_safe", "farther",
+                 "density", "valid")
 
 
 def change_pct(base: float, tuned: float) -> float:

@@ -16,6 +16,11 @@ training frames with each key nudged one step either way (P1, P2 and the speckle
 window x0.9 / x1.1, block size +-2, uniqueness +-1, speckle range and
 disp12MaxDiff +-1): when one nudge loses the whole gain the candidate had over the
 base (or fails), the candidate sits on a cliff and the next one is tried.
+
+**Farther readings.** :func:`farther_check` is the gate's safety half: a candidate
+that reads MORE held-out frames farther than the branch truth by more than
+``metrics.FARTHER_TOL_PCT`` (2 %) than its base does is refused like a worse score,
+whatever its mean (a better mean bought with farther readings is the unsafe trade).
 """
 
 from __future__ import annotations
@@ -28,7 +33,8 @@ from uav_depth.core.errors import ConfigError
 from uav_depth.core.params import StereoParams, params_from_dict
 
 from uav_depth.tuning.executor import Executor, run_all
-from uav_depth.tuning.objective import FITNESS, Task
+from uav_depth.tuning.metrics import FARTHER_TOL_PCT
+from uav_depth.tuning.objective import FITNESS, Evaluation, Task
 
 #: auto: k-fold over sessions when a log has at least 2 and at most this many sessions (else one split).
 FEW_SESSIONS = 8
@@ -175,3 +181,39 @@ def cross_select(executor: Executor, fitness_name: str, base: StereoParams, sele
         params_from_dict(p["params"])        # a pooled winner is a valid parameter set
     winner = max(range(len(pool)), key=lambda i: (pool[i]["utility"], -i)) if pool else None
     return CrossSelection(folds, pool, winner, base_h)
+
+
+@dataclass(frozen=True)
+class FartherCheck:
+    """Frames read farther than the truth by more than FARTHER_TOL_PCT: the base's and the candidate's counts
+    on the same ``frames`` frames with branch truth. ``reason``: the gate's one line when refused, else None."""
+
+    base: int
+    tuned: int
+    frames: int
+    reason: str | None
+
+
+def count_farther(evaluations: Sequence[Evaluation]) -> tuple[int, int]:
+    """(frames read farther than the truth by > FARTHER_TOL_PCT, frames with branch truth) over full evaluations
+    (``Evaluation.frame_metrics``' ``farther`` flag, objective._frame_metrics); a failed evaluation counts none."""
+    flags = [f["farther"] for ev in evaluations for f in ev.frame_metrics if "farther" in f]
+    return int(sum(flag > 0 for flag in flags)), len(flags)
+
+
+def farther_check(base: Sequence[Evaluation], tuned: Sequence[Evaluation], where: str = "held-out") -> FartherCheck:
+    """The gate's safety rule: refuse a candidate that reads more frames farther than the truth than its base.
+
+    ``base`` and ``tuned``: full evaluations of the two on the same frame sets (the frames the choice was made
+    on). Equal counts pass (the score then decides); frames without branch truth do not count.
+    """
+    nb, frames = count_farther(base)
+    nt, frames_t = count_farther(tuned)
+    reason = None
+    if frames_t != frames:      # the candidate failed on some: it cannot be shown to read no farther
+        reason = (f"the tuned parameters were ranged on {frames_t} of the {frames} {where} frame(s) with branch "
+                  "truth")
+    elif nt > nb:
+        reason = (f"the tuned parameters read {nt} of {frames} {where} frame(s) farther than the branch truth by "
+                  f"more than {FARTHER_TOL_PCT:g} %, the base {nb}")
+    return FartherCheck(nb, nt, frames, reason)

@@ -104,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
     from uav_depth.tuning.executor import make_executor
     from uav_depth.core.session import find_sessions
     from uav_depth.tuning.frames import load_folds, load_split
-    from uav_depth.tuning.robust import cross_select, parse_folds
+    from uav_depth.tuning.robust import cross_select, farther_check, parse_folds
     from uav_depth.tuning.objective import FITNESS, FLOWN_FITNESS, PAPER_FITNESS
     from uav_depth.tuning.optimizers import make_space
     from uav_depth.tuning.report import MANUAL_BASELINE, comparison, sources_text, write_report
@@ -212,9 +212,13 @@ def run(args: argparse.Namespace) -> int:
                 chosen_value = selection.chosen["train"]
                 front = search_front(store, metric)
                 names = [n for n in ("train", "holdout") if len(framesets[n])]
+                # the farther-reading gate counts on the frames the choice was made on (with folds: every fold's)
+                gate_sets = [n for n in ([hn for _, hn in set_names] if selection.on == "holdout" else ["train"])
+                             if len(framesets[n])]
                 terminal.phase("scoring the base and the chosen parameters with every metric on "
                                + " and ".join(names))
-                scores = full_scores(Counted(executor, terminal, "scored"), [base, chosen], names, convention)
+                scores = full_scores(Counted(executor, terminal, "scored"), [base, chosen],
+                                     names + [n for n in gate_sets if n not in names], convention)
             finally:
                 executor.close()
     except TuneInterrupted as exc:
@@ -227,12 +231,16 @@ def run(args: argparse.Namespace) -> int:
     # The gate: with folds, also the cross-validated estimate (each fold's winner on its own held-out sessions)
     # must beat the base's (every number in it held out).
     beats = selection.beats_base and (cross is None or fitness.utility(cross.cv_tuned) > fitness.utility(cross.cv_base))
+    farther = farther_check([scores[(0, n)] for n in gate_sets], [scores[(1, n)] for n in gate_sets],
+                            "held-out" if selection.on == "holdout" else "training")
     cmp = comparison({n: scores[(0, n)] for n in names}, {n: scores[(1, n)] for n in names})
     summary = result_summary(result)
     summary.update(comparison=cmp, convention=convention, budget=budget or {"max_ms": None, "front": front},
                    chosen={"value": chosen_value, "holdout_value": selection.chosen["holdout"],
                            "params": chosen.to_dict()},
                    selection={"on": selection.on, "winner": selection.winner, "beats_base": beats,
+                              "farther": {"base": farther.base, "tuned": farther.tuned, "frames": farther.frames,
+                                          "refused": farther.reason},
                               "candidates": selection.rows, "folds": _folds_summary(selections, folds, cross)},
                    frames={n: framesets[n].keys for n in names}, store=store.path,
                    references={n: framesets[n].reference_sources() for n in names},
@@ -263,6 +271,8 @@ def run(args: argparse.Namespace) -> int:
         else:
             rejected = (f"the tuned parameters do not beat the base on {where} "
                         f"({metric} {selection.chosen[selection.on]:.4g} vs base {selection.base[selection.on]:.4g})")
+    if blocked is None and farther.reason:      # reading farther than the branch is refused like a worse score
+        rejected = farther.reason if rejected is None else f"{rejected}; {farther.reason}"
     status = EXIT_ERROR if blocked or (rejected and args.out and not args.force) else 0
     if args.out and blocked is None:
         provenance = {

@@ -101,11 +101,14 @@ def test_every_fitness_scores_the_baseline(tiny_frames, metric):
     assert ev.status == "ok" and len(ev.per_frame) == 2 and math.isfinite(ev.value)
     assert ev.value == pytest.approx(np.mean(ev.per_frame))
     full = evaluate(TINY_BASE, tiny_frames, FITNESS[metric], full=True, convention="paper")
-    assert full.value == ev.value and full.metrics[metric] == pytest.approx(ev.value)
+    # the branch fitness is the safety-weighted error; the report keeps the plain one as "branch" beside it
+    key = "branch_safe" if metric == "branch" else metric
+    assert full.value == ev.value and full.metrics[key] == pytest.approx(ev.value)
     assert {"mse", "psnr", "ssim", "bad2", "valid", "branch"} <= set(full.metrics)
     assert [f["id"] for f in full.frame_metrics] == ["tiny/000000", "tiny/000001"]
     bench = evaluate(TINY_BASE, tiny_frames, FITNESS[metric], full=True, convention="bench")
-    assert {"mae", "rmse", "bad1", "bad2", "bad4", "psnr", "density", "branch", "truth_m", "branch_m"} == set(bench.metrics)
+    assert {"mae", "rmse", "bad1", "bad2", "bad4", "psnr", "density", "branch", "branch_safe", "farther", "truth_m",
+            "branch_m"} == set(bench.metrics)
 
 
 @pytest.mark.parametrize("metric", ["flown", "flown-bad2"])
@@ -125,8 +128,9 @@ def test_flown_fitness_scores_what_ranging_consumes_and_ignores_wls_smoothing(ti
 def test_branch_fitness_is_the_daemons_ranging_error(tiny_frames):
     ev = evaluate(TINY_BASE, tiny_frames, FITNESS["branch"])
     # the baseline ranges tiny synthetic branches within a few %, or reports no measurement (the ranging's
-    # quality gate), which costs the full 100 %
-    assert min(ev.per_frame) < 10 and all(v < 10 or v == 100.0 for v in ev.per_frame)
+    # quality gate), which costs the full 100 %; a reading more than 2 % farther than the truth costs more
+    # (the safety weighting, metrics.safe_branch_error)
+    assert min(ev.per_frame) < 10 and all(v < 10 or v >= 100.0 for v in ev.per_frame)
     # a matcher that sees nothing near cannot range the branch: the miss costs 100 %
     blind = TINY_BASE.replace(**{"sgbm.num_disparities": 16, "sgbm.min_disparity": 0})
     assert evaluate(blind, tiny_frames, FITNESS["branch"]).value > ev.value
