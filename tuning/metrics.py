@@ -224,7 +224,7 @@ BRANCH_MISS_PCT = 100.0
 
 
 #: A reading farther than the truth by more than this (%) is *farther*: the unsafe direction. 2 % is the
-#: tolerance the ranging's own checks use (docs/ranging.md: "0 farther than 2 %"); within it a reading is
+#: tolerance docs/ranging.md reports against (its "farther > 2 %" columns); within it a reading is
 #: as good as the matcher's sub-pixel noise allows, beyond it the drone is told there is room that is not there.
 FARTHER_TOL_PCT = 2.0
 

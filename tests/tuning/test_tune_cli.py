@@ -196,7 +196,7 @@ def test_tune_refuses_to_write_a_worse_file_and_keeps_the_candidate_beside_it(ti
     before = out.read_bytes()
     # one random candidate against a base that is already good: it cannot beat it on the held-out frame
     args = ["tune", tiny_session / "s", "--base", good, "--optimizer", "random", "--population", "2",
-            "--generations", "1", "--seed", "2", "--workers", "1", "--keys", "sgbm.uniqueness_ratio",
+            "--generations", "1", "--seed", "3", "--workers", "1", "--keys", "sgbm.uniqueness_ratio",
             "--no-progress", "--out", out]
     proc = cli(*args, "--store", tmp_path / "a.sqlite", check=False)
     assert proc.returncode == 1, proc.stdout
