@@ -217,9 +217,12 @@ class Service:
         stage = self.stages.open(self.calibration, self.roi)
         c = self.calibration
         lim = stage.ranger.limits
-        log.info("calibration: f %.1f px, B %.4f m, %dx%d%s; ROI %s; range %.2f..%.2f m", c.focal_px, c.baseline_m,
+        # the range DISTANCE_SENSOR states (where readings are precise enough to send), which the
+        # autopilot's RNGFND1_MIN/MAX are set against; the farthest the search could see beside it
+        log.info("calibration: f %.1f px, B %.4f m, %dx%d%s; ROI %s; range %.2f..%.2f m (stated on the wire; "
+                 "the search reaches %.2f m)", c.focal_px, c.baseline_m,
                  c.width, c.height, "" if self.rectifier.passthrough else " (rectified from raw)", list(self.roi),
-                 lim.min_distance_m, lim.max_distance_m)
+                 lim.min_distance_m, lim.stated_max_m, lim.max_distance_m)
         log.info("parameters: %s, hash %s", stage.origin, stage.hash)
         if cfg.logging.dir is not None:
             ensure_log_dir(cfg.logging.dir)     # ConfigError: exit 78 before anything flies

@@ -337,7 +337,9 @@ def dim_for(key: str, scale: str | None = None) -> Dim:
         lo = max(lo, OPENCV_PRE_FILTER_CAP_FLOOR)
     if spec.kind is float and spec.rule == "positive" and lo <= 0:
         lo = hi * POSITIVE_FLOOR_FRACTION
-    kind = spec.rule if spec.rule in ("odd", "multiple_of_16") else ("int" if spec.kind is int else "float")
+    # "0 (off) or a multiple of 16" (compute.fine_disparities) is the multiple-of-16 grid from 0
+    rule = "multiple_of_16" if spec.rule == "zero_or_multiple_of_16" else spec.rule
+    kind = rule if rule in ("odd", "multiple_of_16") else ("int" if spec.kind is int else "float")
     shift = 0.0
     if scale == "log" and lo <= 0:
         shift = 1.0 - lo  # log(v - lo + 1): 0 at the lower bound

@@ -46,6 +46,15 @@ def fold_study_name(fold: int) -> str:
     return STUDY_NAME if fold == 0 else f"{STUDY_NAME}-fold{fold + 1}"
 
 
+#: How long a write waits for a reader's lock on a SQLite store (optuna-dashboard, ``optuna studies``, a test
+#: polling the trial count) before failing: SQLite's own default is 5 s, which a loaded machine exceeds.
+SQLITE_BUSY_TIMEOUT_S = 60.0
+
+
+def _engine_kwargs(url: str) -> dict:
+    return {"connect_args": {"timeout": SQLITE_BUSY_TIMEOUT_S}} if url.startswith("sqlite:") else {}
+
+
 def storage_url(path: str | os.PathLike[str]) -> str:
     """An Optuna storage URL: ``path`` itself when it is one (``sqlite:///...``, ``postgresql://...``),
     else a SQLite file at ``path``."""
@@ -99,7 +108,8 @@ class RunStore:
             Path(self.path).parent.mkdir(parents=True, exist_ok=True)
             _refuse_old_format(Path(self.path))
         try:
-            self.storage = optuna.storages.InMemoryStorage() if memory else optuna.storages.RDBStorage(self.url)
+            self.storage = optuna.storages.InMemoryStorage() if memory else optuna.storages.RDBStorage(
+                self.url, engine_kwargs=_engine_kwargs(self.url))
             self.study = optuna.create_study(storage=self.storage, study_name=study_name, direction=direction,
                                              load_if_exists=True)
         except Exception as exc:  # SQLAlchemy / Optuna raise many kinds for a file that is not a store

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import argparse
 
+from uav_depth.cli.overrides import add_set_option, apply_sets
+
 
 def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("logdir", help="a session or a directory of sessions (log layout)")
     p.add_argument("--params", help="parameter file (default: built-in manual baseline)")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="change one parameter of the file (or the baseline), e.g. --set sgbm.num_disparities=64 "
-                        "(repeatable)")
+    add_set_option(p, "the file (or the baseline)")
     p.add_argument("--roi", metavar="L,T,R,B",
                    help="score inside this box, fractions of the image (as compute.roi), whatever the "
                         "parameters match: compares two files in the same box")
@@ -20,25 +20,6 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "unmatchable left strip left out, PSNR against a fixed peak; paper: the WLS map, invalid "
                         "= 0, PSNR peak per frame (Lin et al. 2025)")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-
-
-def parse_sets(items: list[str]) -> dict:
-    """``--set KEY=VALUE`` items -> {dotted key: YAML value}; ConfigError naming --set when malformed."""
-    import yaml
-
-    from uav_depth.core.errors import ConfigError
-
-    out = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        key = key.strip()
-        if not sep or key.count(".") != 1:
-            raise ConfigError("--set", "must look like SECTION.KEY=VALUE (sgbm.num_disparities=64)", item)
-        try:
-            out[key] = yaml.safe_load(value) if value.strip() else None
-        except yaml.YAMLError:
-            out[key] = value
-    return out
 
 
 def parse_roi(text: str | None):
@@ -67,9 +48,7 @@ def run(args: argparse.Namespace) -> int:
     from uav_depth.core.session import iter_frames
 
     params = load_params(args.params) if args.params else DEFAULT_PARAMS
-    sets = parse_sets(args.overrides)
-    if sets:
-        params = params.replace(**sets)
+    params = apply_sets(params, args.overrides)
     roi = parse_roi(args.roi)
     records = list(iter_frames(args.logdir, require_reference=True))
     if not records:

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import os
 
+from uav_depth.cli.overrides import add_set_option, apply_sets
+
 DEFAULT_STORE = "uav-depth-tune.sqlite"
 
 
@@ -49,6 +51,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--base", default=None,
                    help="parameter file the search starts from and keeps for untuned keys "
                         "(default: the built-in manual baseline)")
+    add_set_option(p, "the base before the search (the search range per data set, for example)")
     p.add_argument("--workers", type=int, default=None, help="evaluating processes (default: all cores)")
     p.add_argument("--ray-address", default=None,
                    help="evaluate on Ray: 'local' starts one here, 'auto' or ray://HOST:PORT joins a cluster")
@@ -125,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
     # Reports: the paper's fitnesses are reported in the paper's convention, every other one as benchmarks do.
     convention = "paper" if metric in PAPER_FITNESS else "bench"
     terminal.phase(f"loading the frames of {args.logdir}")
-    base = load_params(args.base) if args.base else DEFAULT_PARAMS
+    base = apply_sets(load_params(args.base) if args.base else DEFAULT_PARAMS, args.overrides)
     k = parse_folds(args.folds, len(find_sessions(args.logdir)), args.holdout)
     folds = load_folds(args.logdir, k, fitness.needs) if k > 1 else [load_split(args.logdir, args.holdout,
                                                                                  fitness.needs)]
@@ -244,7 +247,8 @@ def run(args: argparse.Namespace) -> int:
                               "candidates": selection.rows, "folds": _folds_summary(selections, folds, cross)},
                    frames={n: framesets[n].keys for n in names}, store=store.path,
                    references={n: framesets[n].reference_sources() for n in names},
-                   base=os.path.abspath(args.base) if args.base else MANUAL_BASELINE,
+                   base=(os.path.abspath(args.base) if args.base else MANUAL_BASELINE)
+                   + "".join(f" --set {item}" for item in args.overrides),
                    evaluations_per_s=result.evaluated / result.wall_s if result.wall_s > 0 else None)
     held_base, held_tuned = selection.base["holdout"], selection.chosen["holdout"]
     print(f"{args.optimizer} on {len(train)} train frame(s): {metric} base {result.baseline.value:.4g} -> "

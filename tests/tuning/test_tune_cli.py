@@ -163,7 +163,10 @@ def test_holdout_and_max_ms(tiny_session, tmp_path):
     (["--max-ms", "0"], "--max-ms must be greater than 0"),
     (["--keys", "sgbm.p1,wls.lambda"], "--keys must change what flies"),
     (["--timeout", "0"], "--timeout must be greater than 0 seconds"),
-], ids=["holdout-fraction", "holdout-name", "keys", "population", "max-ms", "wls-not-flown", "timeout"])
+    (["--set", "num_disparities"], "--set must look like SECTION.KEY=VALUE"),
+    (["--set", "sgbm.nosuch=1"], "--set: sgbm.nosuch is not a known key"),
+], ids=["holdout-fraction", "holdout-name", "keys", "population", "max-ms", "wls-not-flown", "timeout",
+        "set-malformed", "set-unknown-key"])
 def test_bad_arguments_are_one_line_config_errors(tiny_session, tmp_path, extra, match):
     proc = cli("tune", tiny_session / "s", "--store", tmp_path / "x.sqlite", "--no-progress", *extra, check=False)
     assert proc.returncode == EXIT_CONFIG and match in proc.stderr
@@ -187,6 +190,19 @@ def test_default_tune_flies_chooses_on_held_out_frames_and_reports_benchmark_met
     table = (tmp_path / "rep" / "table.md").read_text()
     assert "benchmark convention" in table and "-42.86%" not in table
     assert "wrote " in proc.stdout
+
+
+def test_set_changes_the_base_the_search_starts_from_and_keeps(tiny_session, tmp_path):
+    """tune --set: the search range per data set without writing a parameter file by hand."""
+    out = tmp_path / "p.yaml"
+    cli("tune", tiny_session / "s", "--base", tiny_session / "base.yaml", "--set", "sgbm.num_disparities=32",
+        "--optimizer", "random", "--keys", "sgbm.uniqueness_ratio", "--population", "2", "--generations", "1",
+        "--workers", "1", "--no-progress", "--force", "--store", tmp_path / "s.sqlite", "--out", out,
+        "--report", tmp_path / "rep")
+    assert load_params(tiny_session / "base.yaml").sgbm.num_disparities == 48
+    assert load_params(out).sgbm.num_disparities == 32          # an untuned key comes from the changed base
+    summary = json.loads((tmp_path / "rep" / "summary.json").read_text())
+    assert summary["base"].endswith("base.yaml --set sgbm.num_disparities=32")
 
 
 def test_tune_refuses_to_write_a_worse_file_and_keeps_the_candidate_beside_it(tiny_session, tmp_path):
