@@ -206,6 +206,12 @@ class ComputeParams:
         return self.roi == (0.0, 0.0, 1.0, 1.0)
 
     @property
+    def fine_pass(self) -> bool:
+        """The flight pipeline re-matches the ranged object at full resolution: ``fine_disparities`` is set
+        and the main match is below full resolution (at scale 1 it already is full resolution)."""
+        return self.fine_disparities > 0 and self.scale < 1.0
+
+    @property
     def is_baseline(self) -> bool:
         """Full frame, full resolution, colour as given: the manual baseline's computation."""
         return self.whole_frame and self.scale == 1.0 and not self.grey

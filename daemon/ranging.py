@@ -229,8 +229,7 @@ class Ranger:
         self.d_floor = max(self.fb / config.max_distance_m, sg.min_disparity * self.px, 1.0 / 16.0)
         # DISTANCE_SENSOR's range ends where sigma_z = z^2 / fb * sigma_d passes max_sigma_m at the floor:
         # the fine pass's (full resolution) when it runs, the coarse pass's otherwise.
-        fine = params.compute.fine_disparities > 0 and params.compute.scale < 1.0
-        self.sigma_floor_px = PIXEL_LOCKING_SIGMA_PX * (1.0 if fine else self.px)
+        self.sigma_floor_px = PIXEL_LOCKING_SIGMA_PX * (1.0 if params.compute.fine_pass else self.px)
         self.d_precise = math.sqrt(self.fb * self.sigma_floor_px / config.max_sigma_m)
         self.limits = RangeLimits(min_distance_m=self.fb / d_max, max_distance_m=self.fb / self.d_floor,
                                   precise_max_m=self.fb / self.d_precise,

@@ -121,7 +121,7 @@ def pipeline_reads(params: StereoParams, width: int, height: int, near: bool = T
     if near:
         crops.append(window(near_params(params), width, height).crop)
     cp, sg = params.compute, params.sgbm
-    if cp.fine_disparities > 0 and cp.scale < 1.0:
+    if cp.fine_pass:
         # The fine pass (core.disparity.fine) re-matches a box inside compute.roi at full resolution:
         # its left crop reaches fine_disparities + context beyond the box, its right crop as far again
         # plus the shift d0, at most the main search's largest disparity.

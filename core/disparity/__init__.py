@@ -61,8 +61,7 @@ class DisparityPipeline:
         self.refine = refine and params.wls.enabled
         self._near = DisparityPipeline(near_params(params), refine=False) if near else None
         # The fine pass only adds resolution: at compute.scale 1 the main match is already full resolution.
-        self._fine = (FineMatcher(params) if fine and params.compute.fine_disparities > 0
-                      and params.compute.scale < 1.0 else None)
+        self._fine = FineMatcher(params) if fine and params.compute.fine_pass else None
         self.matchers: Matchers = build_matchers(params)
         m = self.matchers
         self.left_matcher, self.right_matcher, self.wls = m.left, m.right, m.wls
