@@ -223,6 +223,13 @@ FLOWN_KEYS: tuple[str, ...] = tuple(k for k in DEFAULT_KEYS if k not in NOT_FLOW
 #: when the search has a frame-time budget (``--max-ms``), so the Pareto front has fast options.
 SPEED_KEYS: tuple[str, ...] = tuple(k for k in ("compute.scale", "compute.grey") if k in SPEC_BY_KEY)
 
+#: The largest P1/P2 a candidate may win with (study.fragile_reason) and so the largest the improved space
+#: searches: half of OpenCV's 16-bit cost limit. SGBM sums penalties along its paths in 16-bit costs, which
+#: wrap a little above this on some images (issue 12: p2 27500 fine on one image, 29666 broke others), so
+#: searching above it only spends evaluations on candidates that cannot be chosen. The paper's space keeps
+#: the paper's ranges (faithful mode); its candidates above this are refused by the same rule.
+WINNABLE_COST_MAX = OPENCV_COST_MAX // 2
+
 #: Significant digits a decoded float keeps.
 FLOAT_DIGITS = 4
 
@@ -312,9 +319,10 @@ class Dim:
 def dim_for(key: str, scale: str | None = None) -> Dim:
     """The search dimension of one schema key, bounds from its Spec.
 
-    Tightened only by facts the schema module states about OpenCV: penalties
-    stop at OPENCV_COST_MAX (above it SGBM's 16-bit costs wrap), p1 stops one
-    below so p2 > p1 always has room, and preFilterCap starts at OpenCV's floor.
+    Tightened only by facts about OpenCV: penalties stop at WINNABLE_COST_MAX
+    (above it SGBM's 16-bit costs wrap on some images, and such a candidate may not
+    win), p1 stops one below so p2 > p1 always has room, and preFilterCap starts at
+    OpenCV's floor.
     """
     if key not in SPEC_BY_KEY:
         raise ConfigError("--keys", f"must name parameter-file keys (known: {', '.join(SPEC_BY_KEY)})", key)
@@ -329,9 +337,9 @@ def dim_for(key: str, scale: str | None = None) -> Dim:
     lo, hi = float(spec.lo), float(spec.hi)
     above = None
     if key == "sgbm.p1":
-        hi = min(hi, OPENCV_COST_MAX) - 1
+        hi = min(hi, WINNABLE_COST_MAX) - 1
     elif key == "sgbm.p2":
-        hi = min(hi, OPENCV_COST_MAX)
+        hi = min(hi, WINNABLE_COST_MAX)
         above = "sgbm.p1"
     elif key == "sgbm.pre_filter_cap":
         lo = max(lo, OPENCV_PRE_FILTER_CAP_FLOOR)

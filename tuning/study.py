@@ -35,7 +35,7 @@ from uav_depth.tuning.executor import Executor, run_all
 from uav_depth.tuning.frames import FrameSet
 from uav_depth.tuning.objective import FITNESS, OK, Evaluation, Task, failed
 from uav_depth.tuning.optimizers import OPTIMIZERS, make_space
-from uav_depth.tuning.space import describe_space
+from uav_depth.tuning.space import WINNABLE_COST_MAX, describe_space
 from uav_depth.tuning.store import RunStore
 
 #: Bump when the meaning of an evaluation changes: old cached evaluations are then not reused.
@@ -364,21 +364,16 @@ def choose_under_budget(store: RunStore, fitness_name: str, frames: FrameSet, ma
 
 # -- the choice: on frames the search did not see ------------------------------------------------------------------
 
-#: A candidate whose sgbm.p2 is above this fraction of OpenCV's 16-bit cost limit cannot win: the costs
-#: SGBM sums along its paths wrap a little above it on some images (issue 12: p2 27500 fine, 29666 broke
-#: other images), so a training frame's liking for it says nothing about the next image.
-FRAGILE_COST_FRACTION = 0.5
 #: How many of the best training candidates are scored on the held-out frames for the choice.
 SELECT_TOP = 6
 
 
 def fragile_reason(params: StereoParams) -> str | None:
     """Why ``params`` may not win however well it scored (a cliff near it), or None."""
-    limit = FRAGILE_COST_FRACTION * OPENCV_COST_MAX
     for name in ("p1", "p2"):
         value = getattr(params.sgbm, name)
-        if value > limit:
-            return (f"sgbm.{name}={value} is above {FRAGILE_COST_FRACTION:g} x OpenCV's 16-bit cost limit "
+        if value > WINNABLE_COST_MAX:       # the same bound the improved space searches up to
+            return (f"sgbm.{name}={value} is above {WINNABLE_COST_MAX}, half of OpenCV's 16-bit cost limit "
                     f"{OPENCV_COST_MAX} (fragile: costs wrap near it)")
     return None
 

@@ -7,7 +7,8 @@ from uav_depth.core.errors import ConfigError
 from uav_depth.core.params import (DEFAULT_PARAMS, OPENCV_COST_MAX, OPENCV_PRE_FILTER_CAP_FLOOR, SPEC_BY_KEY,
                                      SPECS, params_from_dict)
 from uav_depth.tuning.space import (DEFAULT_KEYS, PAPER_LAYOUT, PaperSpace, SchemaSpace, build, decode_number,
-                                    dim_for, encode_number, parse_keys)
+                                    WINNABLE_COST_MAX, dim_for, encode_number, parse_keys)
+from uav_depth.tuning.study import fragile_reason
 
 
 @pytest.mark.parametrize("genes, value", [
@@ -91,8 +92,9 @@ def test_schema_space_bounds_come_from_the_schema_and_opencv_limits():
         dim, spec = dim_for(key), SPEC_BY_KEY[key]
         if dim.kind in ("int", "float", "odd"):
             assert spec.lo <= dim.lo and dim.hi <= spec.hi, key
-    assert dim_for("sgbm.p2").hi == min(SPEC_BY_KEY["sgbm.p2"].hi, OPENCV_COST_MAX)
-    assert dim_for("sgbm.p1").hi < OPENCV_COST_MAX
+    # P1/P2 stop where a candidate may still win (study.fragile_reason), half of the 16-bit cost limit
+    assert dim_for("sgbm.p2").hi == min(SPEC_BY_KEY["sgbm.p2"].hi, WINNABLE_COST_MAX) < OPENCV_COST_MAX
+    assert dim_for("sgbm.p1").hi < WINNABLE_COST_MAX
     assert dim_for("sgbm.pre_filter_cap").lo == OPENCV_PRE_FILTER_CAP_FLOOR
 
 
@@ -102,7 +104,8 @@ def test_schema_space_candidates_always_validate_and_keep_the_declared_rules():
     for i in range(400):
         genome = space.sample(rng) if i > 3 else np.full(space.size, [0.0, 1.0, 0.5, 0.999999][i])
         p = build(space, genome, DEFAULT_PARAMS)       # raises if the schema rejects it
-        assert p.sgbm.p1 < p.sgbm.p2 <= OPENCV_COST_MAX
+        assert p.sgbm.p1 < p.sgbm.p2 <= WINNABLE_COST_MAX
+        assert fragile_reason(p) is None           # nothing searched is refused for its penalties
         assert p.sgbm.block_size % 2 == 1 and p.sgbm.num_disparities % 16 == 0
         assert not p.sgbm.overflows
 
