@@ -9,7 +9,7 @@ the tuned file are then measured as the daemon flies on the leafy suite's own sc
 0..``--scenes``-1 (never trained on): pipeline, Ranger, DISTANCE_SENSOR report.
 
     nice python bench/tune_leafy.py [--train 8] [--scenes 30] [--population 10 --generations 6]
-                                    [--also LABEL:FILE ...]
+                                    [--tune-args '--folds 3 ...'] [--also LABEL:FILE ...]
 
 Columns: the mean branch error (plain, symmetric; a miss = 100 %), the safety-weighted
 one the flown fitness uses (``metrics.safe_branch_error``: farther than the truth by
@@ -84,6 +84,8 @@ def main() -> int:
     ap.add_argument("--generations", type=int, default=6)
     ap.add_argument("--workers", default="2")
     ap.add_argument("--metric", default="flown")
+    ap.add_argument("--tune-args", default="", type=lambda t: tuple(t.split()),
+                    help="more uav-depth tune arguments (e.g. '--folds 3 --keys default,sgbm.mode')")
     ap.add_argument("--also", action="append", default=[], metavar="LABEL:FILE",
                     help="measure this parameter file too, in the same run (repeatable)")
     args = ap.parse_args()
@@ -97,7 +99,7 @@ def main() -> int:
     proc = subprocess.run([sys.executable, "-m", "uav_depth.cli.main", "tune", sessions, "--base", FLIGHT_FILE,
                            "--metric", args.metric, "--population", str(args.population), "--generations",
                            str(args.generations), "--workers", args.workers, "--out", out, "--report", report,
-                           "--no-progress", "--force"], capture_output=True, text=True)
+                           "--no-progress", "--force", *args.tune_args], capture_output=True, text=True)
     if proc.returncode != 0:
         raise SystemExit(f"uav-depth tune failed ({proc.returncode}): {proc.stderr.strip()}")
     tune_s = time.perf_counter() - t0
@@ -111,6 +113,13 @@ def main() -> int:
           f"{args.population} x {args.generations} per fold, {len(sel.get('folds') or [1])} fold(s); gate: "
           f"{'beats' if sel['beats_base'] else 'does NOT beat'} the base held out; chosen sgbm "
           f"{summary['chosen']['params']['sgbm']}")
+    far = sel.get("farther") or {}
+    print(f"  gate's farther > 2 % count on frames the choice did not train on: base {far.get('base')} -> tuned "
+          f"{far.get('tuned')} of {far.get('frames')}" + ("" if "cross_validated" not in far else
+                                                        "; cross-validated (each fold's winner on its own held-out) "
+                                                        f"{far['cross_validated']['base']} -> "
+                                                        f"{far['cross_validated']['tuned']} of "
+                                                        f"{far['cross_validated']['frames']}"))
     for f in sel.get("folds") or []:
         print(f"  fold {f['fold']}: {args.metric} train {f['base_train']:.3f} -> {f['winner_train']:.3f}, "
               f"held-out {f['base_holdout']:.3f} -> {f['winner_holdout']:.3f}")
