@@ -253,7 +253,7 @@ def tune(request: TuneRequest, hooks: Hooks = Hooks()) -> Decision:
                 selection = selections[0]
             chosen = params_from_dict(selection.chosen["params"])
             names = [n for n in ("train", "holdout") if len(framesets[n])]
-            own, cv_sets = _farther_sets(k, selection, cross, names_k, framesets)
+            own, cv_sets = farther_sets(k, selection, cross, names_k, framesets)
             hooks.phase("scoring the base and the chosen parameters with every metric on " + " and ".join(names))
             counted = hooks.count(executor, "scored")
             convention = default_convention(metric)
@@ -298,10 +298,14 @@ def _pooled_selection(fitness, base: StereoParams, result: StudyResult, selectio
     return Selection(rows, 0 if cross.winner is None else cross.winner + 1, "holdout")
 
 
-def _farther_sets(k: int, selection: Selection, cross: CrossSelection | None, names_k: list[tuple[str, str]],
+def farther_sets(k: int, selection: Selection, cross: CrossSelection | None, names_k: list[tuple[str, str]],
                   framesets: dict[str, FrameSet]) -> tuple[list[str], list[tuple[int, str]]]:
-    """Where the farther check counts, only frames the candidate did not train on: (the chosen candidate's
-    sets, [(fold, held-out set)] of the cross-validated view, empty without folds)."""
+    """Where the gate's farther check counts: only frames the candidate did not train on.
+
+    Returns (the chosen candidate's frame sets, [(fold, held-out set)] of the cross-validated view). One split:
+    the frames the choice was made on. k folds: the pooled winner's own fold's held-out sessions (it trained on
+    every other fold's), none when no fold winner beat the base (the base is kept); the cross-validated view:
+    every fold's held-out sessions, each scored with that fold's own winner."""
     if cross is None:
         name = "holdout" if selection.on == "holdout" else "train"
         return [name] if len(framesets[name]) else [], []
