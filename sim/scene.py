@@ -34,6 +34,7 @@ import cv2
 import numpy as np
 
 from uav_depth.sim.camera import finish
+from uav_depth.sim.cylinders import CylinderGroup, cast_cylinders
 from uav_depth.sim.foliage import foliage
 from uav_depth.sim.geometry import BACKGROUND, BRANCH, NEEDLE, SKY, TRUNK, TWIG, Cylinder, ShadowMap
 from uav_depth.sim.texture import (BARK_COS as _BARK_COS, BARK_SIN as _BARK_SIN, BG_COS as _BG_COS,
@@ -80,6 +81,8 @@ class Scene:
                          and (not config.has_foliage or i == 1 or i >= len(layout))]
             self._shadows = ShadowMap(occluders, [o for o in occluders if o[0] > len(layout)] or occluders)
         self._dirs_cache: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        # Everything but the needles is cast in one batch (sim/cylinders.py), in scene order.
+        self._solid = CylinderGroup.of([(i + 1, cyl) for i, cyl in enumerate(self.cylinders) if cyl.kind != NEEDLE])
 
     def _layout(self, rng: np.random.Generator) -> list[Cylinder]:
         c = self.config
@@ -185,18 +188,14 @@ class Scene:
             labels[sky] = SKY
             intensity[sky] = np.float32(c.sky_level)
 
-        needles = []
-        for i, cyl in enumerate(self.cylinders):
-            if cyl.kind == NEEDLE:
-                needles.append((i + 1, cyl))
-            else:
-                self._cast_cylinder(cyl, i + 1, origin, rot, dx, dy, dz, depth, labels, intensity, objects, view)
+        pp = shifted(self.calibration.principal_point, view)
+        self._cast(self._solid, origin, rot, dirs, pp, depth, labels, intensity, objects)
+        needles = [(i + 1, cyl) for i, cyl in enumerate(self.cylinders) if cyl.kind == NEEDLE]
         if needles:
-            alone = cast_needles(needles, origin, rot, (dx, dy, dz), c.focal_px, shifted(self.calibration.principal_point, view),
-                                 depth, labels, intensity, objects, _LIGHT)
+            alone = cast_needles(needles, origin, rot, (dx, dy, dz), c.focal_px, pp, depth, labels, intensity,
+                                 objects, _LIGHT)
             for n in alone:
-                self._cast_cylinder(needles[n][1], needles[n][0], origin, rot, dx, dy, dz, depth, labels,
-                                    intensity, objects, view)
+                self._cast(CylinderGroup.of([needles[n]]), origin, rot, dirs, pp, depth, labels, intensity, objects)
         if self._shadows is not None:
             self._shade(origin, dx, dy, dz, depth, objects, intensity)
         return intensity, depth, labels, objects
@@ -225,106 +224,13 @@ class Scene:
         fold = lambda a: np.pad(a, (0, pad)).reshape(rows, cols)  # noqa: E731
         return self._sample(tex_id, fold(tu), fold(tv)).ravel()[:n]
 
-    def _candidates(self, cyl: Cylinder, o: np.ndarray, rot: np.ndarray, view: View) -> np.ndarray | None:
-        """Flat indices of the pixels whose rays may hit ``cyl``; None means every pixel.
+    #: False casts every ray at every cylinder (tests: culling must drop no hit).
+    CULL = True
 
-        Conservative culling (why the renderer is fast): the axis is cut into pieces
-        about one radius long; each piece lies inside a sphere, and the sphere inside
-        an axis-aligned cube in camera coordinates. x/z and y/z are monotonic in each
-        coordinate for z > 0, so the cube's corners bound the piece's projection.
-        Boxes are widened by two pixels against float32 rounding in the hit test. A
-        piece that reaches the camera plane (z <= 0 somewhere) could project
-        anywhere: then every pixel is a candidate. The per-pixel arithmetic is the
-        same for candidates as before, so the image does not change. Indices: ``view``'s.
-        """
-        c = self.config
-        h, w = view[3] - view[1], view[2] - view[0]
-        centres, _, rho = cyl.pieces()
-        cam = (centres - o[None, :]) @ rot                     # rows: rot.T @ (C - o)
-        cx, cy = shifted(self.calibration.principal_point, view)
-        zlo, zhi = cam[:, 2] - rho, cam[:, 2] + rho
-        front = zhi > 0                                         # pieces wholly behind cannot be hit (t > 0)
-        if np.any(front & (zlo <= 1e-6)):
-            return None
-        cam, zlo, zhi = cam[front], zlo[front], zhi[front]
-        if not len(cam):
-            return np.zeros(0, np.intp)
-        margin = 2
-        bounds = []
-        for axis, centre, size in ((0, cx, w), (1, cy, h)):
-            corners = np.stack([(cam[:, axis] + sx * rho) / z for sx in (-1.0, 1.0) for z in (zlo, zhi)])
-            lo = np.floor(centre + c.focal_px * corners.min(axis=0)).astype(np.int64) - margin
-            hi = np.ceil(centre + c.focal_px * corners.max(axis=0)).astype(np.int64) + margin
-            bounds.append((np.clip(lo, 0, size), np.clip(hi + 1, 0, size)))
-        (j0, j1), (i0, i1) = bounds
-        keep = (i0 < i1) & (j0 < j1)
-        if not keep.any():
-            return np.zeros(0, np.intp)
-        i0, i1, j0, j1 = i0[keep], i1[keep], j0[keep], j1[keep]
-        # The union of the boxes, marked in their bounding box only (thin cylinders have many small ones).
-        bi, bj = int(i0.min()), int(j0.min())
-        mask = np.zeros((int(i1.max()) - bi, int(j1.max()) - bj), bool)
-        for a, b, cc, d in zip(i0 - bi, i1 - bi, j0 - bj, j1 - bj):
-            mask[a:b, cc:d] = True
-        rows, cols = np.nonzero(mask)
-        return (rows + bi) * w + (cols + bj)
-
-    def _cast_cylinder(self, cyl: Cylinder, obj: int, o: np.ndarray, rot: np.ndarray, dx, dy, dz, depth, labels,
-                       intensity, objects, view: View) -> None:
-        idx = self._candidates(cyl, o, rot, view)
-        if idx is None:
-            idx = np.arange(depth.size)
-        if not idx.size:
-            return
-        # Work on the candidate pixels only, as flat vectors: elementwise float32
-        # arithmetic gives the same value per pixel whatever the array's shape.
-        dxc, dyc, dzc = dx.ravel()[idx], dy.ravel()[idx], dz.ravel()[idx]
-        a = cyl.axis.astype(np.float64)
-        wv = o - cyl.p0
-        wa = float(wv @ a)
-        wp = wv - wa * a                                       # w perpendicular to the axis
-        da = dxc * np.float32(a[0]) + dyc * np.float32(a[1]) + dzc * np.float32(a[2])
-        dpx, dpy, dpz = dxc - da * np.float32(a[0]), dyc - da * np.float32(a[1]), dzc - da * np.float32(a[2])
-        A = dpx * dpx + dpy * dpy + dpz * dpz
-        B = 2.0 * (dpx * np.float32(wp[0]) + dpy * np.float32(wp[1]) + dpz * np.float32(wp[2]))
-        C = np.float32(wp @ wp - cyl.radius ** 2)
-        disc = B * B - 4.0 * A * C
-        ok = disc >= 0
-        if not ok.any():
-            return
-        with np.errstate(invalid="ignore", divide="ignore"):
-            t = (-B - np.sqrt(np.where(ok, disc, 0))) / (2.0 * A)
-        s = wa + t * da
-        ok &= (t > 0) & (s >= 0) & (s <= cyl.length) & (t < depth.ravel()[idx])
-        if not ok.any():
-            return
-        sel = np.flatnonzero(ok)
-        flat = idx[sel]
-        tt = t[sel]
-        hx = o[0] + tt * dxc[sel] - cyl.p0[0]
-        hy = o[1] + tt * dyc[sel] - cyl.p0[1]
-        hz = o[2] + tt * dzc[sel] - cyl.p0[2]
-        ss = s[sel]
-        nx, ny, nz = hx - ss * a[0], hy - ss * a[1], hz - ss * a[2]     # radial vector, length r
-        e1 = np.cross(a, [0.0, 0.0, 1.0])
-        if np.linalg.norm(e1) < 1e-6:
-            e1 = np.cross(a, [1.0, 0.0, 0.0])
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(a, e1)
-        ang = np.arctan2(nx * e2[0] + ny * e2[1] + nz * e2[2], nx * e1[0] + ny * e1[1] + nz * e1[2])
-        scale = _TEX_SIZE / _TEX_M[True] * self.config.texture_scale
-        # Bark grain spirals at an irrational angle, so the tile does not repeat along the
-        # branch: laid straight it came back every 0.25 m, inside SGBM's search range for a
-        # branch at 1.7 m, and SGBM matched the wrong repeat (a false branch at 0.32 m).
-        au, av = ang * cyl.radius, ss
-        tu = ((au * _BARK_COS - av * _BARK_SIN) * scale).astype(np.float32)
-        tv = ((au * _BARK_SIN + av * _BARK_COS) * scale).astype(np.float32)
-        tex = self._sample_points(cyl.texture, tu, tv)
-        shade = 0.35 + 0.65 * np.clip((nx * _LIGHT[0] + ny * _LIGHT[1] + nz * _LIGHT[2]) / cyl.radius, 0, 1)
-        depth.ravel()[flat] = tt
-        labels.ravel()[flat] = cyl.kind
-        objects.ravel()[flat] = obj
-        intensity.ravel()[flat] = (cyl.albedo * (0.45 + 0.55 * tex) * shade).astype(np.float32)
+    def _cast(self, group: CylinderGroup, origin, rot, dirs, pp, depth, labels, intensity, objects) -> None:
+        cast_cylinders(group, origin, rot, dirs, self.config.focal_px, pp, depth, labels, intensity, objects, _LIGHT,
+                       _TEX_SIZE / _TEX_M[True] * self.config.texture_scale, _BARK_COS, _BARK_SIN,
+                       self._sample_points, self.CULL)
 
     def render(self, pose: Pose | None = None, rng: np.random.Generator | None = None, window: View | None = None):
         """Render both views at ``pose`` (default identity). ``rng`` draws the sensor noise. ``window``:

@@ -83,7 +83,7 @@ def test_culled_render_equals_full_frame_cast(monkeypatch, pose):
     """Bounding-volume culling must never drop a hit: same pixels as casting every ray at every cylinder."""
     cfg = SceneConfig(width=320, height=240, focal_px=200.0, branch_distance_m=1.0, n_branches=6, color=True, seed=9)
     fast = Scene(cfg).render(pose, np.random.default_rng(3))
-    monkeypatch.setattr(Scene, "_candidates", lambda self, cyl, o, rot, view: None)
+    monkeypatch.setattr(Scene, "CULL", False)
     full = Scene(cfg).render(pose, np.random.default_rng(3))
     assert fast.branch_mask.any()
     for name in ("left", "right", "labels"):
@@ -295,8 +295,33 @@ def test_culled_leafy_render_equals_full_frame_cast(monkeypatch):
     """Twigs, small branches, sky and shadows go through the same culling: it must drop no hit."""
     cfg = SceneConfig.leafy(seed=6, width=320, height=180, focal_px=175.0, branch_distance_m=0.7, fascicles=0)
     fast = Scene(cfg).render(rng=np.random.default_rng(1))
-    monkeypatch.setattr(Scene, "_candidates", lambda self, cyl, o, rot, view: None)
+    monkeypatch.setattr(Scene, "CULL", False)
     full = Scene(cfg).render(rng=np.random.default_rng(1))
     assert (fast.labels == 3).sum() > 50
     for name in ("left", "right", "labels", "objects", "depth"):
         assert np.array_equal(getattr(fast, name), getattr(full, name)), name
+
+
+@pytest.mark.parametrize("pose", [Pose(), _turned(8.0, [0.05, 0.02, 0.3])], ids=["identity", "turned"])
+def test_one_batch_of_cylinders_is_each_cast_alone_in_turn(monkeypatch, pose):
+    """The batched cast (sim/cylinders.py) keeps the one-by-one rule: scene order, a later cylinder takes a
+    pixel only when strictly nearer. A twin of the target branch at the same place must lose every tie."""
+    from uav_depth.sim.cylinders import CylinderGroup
+
+    cfg = SceneConfig.leafy(seed=4, width=320, height=180, focal_px=175.0, branch_distance_m=0.8, fascicles=0)
+    scene = Scene(cfg)
+    members = [(i + 1, c) for i, c in enumerate(scene.cylinders)]
+    twin = (len(members) + 1, scene.cylinders[1])            # the target branch again, object index past the end
+    scene._solid = CylinderGroup.of(members + [twin])
+    batched = scene.render(pose, np.random.default_rng(2))
+
+    def in_turn(self, group, *args):
+        for member in zip(group.objects, group.cylinders):
+            cast(self, CylinderGroup.of([member]), *args)
+
+    cast = Scene._cast
+    monkeypatch.setattr(Scene, "_cast", in_turn)
+    alone = scene.render(pose, np.random.default_rng(2))
+    assert (batched.objects == 2).sum() > 100 and not (batched.objects == twin[0]).any()
+    for name in ("left", "right", "labels", "objects", "depth"):
+        assert np.array_equal(getattr(batched, name), getattr(alone, name)), name
