@@ -30,9 +30,9 @@ from uav_depth.core.errors import ConfigError
 from uav_depth.core.params import StereoParams, params_from_dict
 from uav_depth.core.session import find_sessions
 
-from uav_depth.tuning.executor import Executor, make_executor
+from uav_depth.tuning.executor import Executor, make_executor, run_all
 from uav_depth.tuning.frames import FrameSet, load_folds, load_split
-from uav_depth.tuning.objective import FITNESS, FLOWN_FITNESS, default_convention
+from uav_depth.tuning.objective import FITNESS, FLOWN_FITNESS, Task, default_convention
 from uav_depth.tuning.optimizers import make_space
 from uav_depth.tuning.report import comparison
 from uav_depth.tuning.robust import CrossSelection, FartherCheck, cross_select, farther_check, parse_folds
@@ -262,10 +262,11 @@ def tune(request: TuneRequest, hooks: Hooks = Hooks()) -> Decision:
             cv_farther = None
             if cv_sets:
                 # the cross-validated view: each fold's own winner on its own held-out sessions, base beside it
-                base_ev = full_scores(counted, [request.base], [hn for _, hn in cv_sets], convention)
-                winners = [(params_from_dict(selections[j].chosen["params"]), hn) for j, hn in cv_sets]
-                won = [full_scores(counted, [p], [hn], convention)[(0, hn)] for p, hn in winners]
-                cv_farther = farther_check([base_ev[(0, hn)] for _, hn in cv_sets], won, "cross-validated held-out")
+                # (one batch, so a pool of workers scores the pairs side by side)
+                pairs = ([(request.base, hn) for _, hn in cv_sets]
+                         + [(params_from_dict(selections[j].chosen["params"]), hn) for j, hn in cv_sets])
+                evs = run_all(counted, [Task(p.to_dict(), hn, full=True, convention=convention) for p, hn in pairs])
+                cv_farther = farther_check(evs[:len(cv_sets)], evs[len(cv_sets):], "cross-validated held-out")
             points = [(ev.ms, ev.value) for _, p, ev in stores[0].evaluations() if ev.ok and math.isfinite(ev.ms)]
             front = search_front(stores[0], metric)
             kind, workers = executor.kind, executor.workers
