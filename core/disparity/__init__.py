@@ -108,16 +108,15 @@ class DisparityPipeline:
                                    timings_ms=laps.ms), None, None
         prep = prepare(self.params.compute, win, left, right)
         laps.lap("prepare")
-        left16 = match_left(self.matchers, prep.left_m, prep.right_m)
+        left16 = self._match_left(win, prep)
         laps.lap("match_left")
-        measured[win.outer()] = self._measured(win, left16)[win.inner()]
+        measured[win.outer()] = self._measured(win, left16)
         if self.right_matcher is None:
             laps.lap("assemble")
             return DisparityResult(measured, measured, None, timings_ms=laps.ms), win, prep
         right16 = match_right(self.matchers, prep.left_m, prep.right_m)
         laps.lap("match_right")
-        conf = self._confidence(win, left16, right16)
-        conf_full[win.outer()] = np.clip(conf[win.inner()] * np.float32(1.0 / 255.0), 0.0, 1.0)
+        conf_full[win.outer()] = np.clip(self._confidence(win, left16, right16) * np.float32(1.0 / 255.0), 0.0, 1.0)
         laps.lap("confidence")
         if not self.refine:
             laps.lap("assemble")
@@ -129,25 +128,48 @@ class DisparityPipeline:
         laps.lap("assemble")
         return DisparityResult(disparity, measured, conf_full, timings_ms=laps.ms), win, prep
 
+    def _match_left(self, win: Window, prep: Prepared) -> np.ndarray:
+        """The left matcher over the columns it needs (:attr:`Window.left_width`), at the crop's matched
+        width: the columns right of them hold OpenCV's invalid value. With the WLS smoothing on
+        (``refine``), over the whole crop, as before: the smoothing spreads what it is given into the
+        region, so those columns' real matches keep its map unchanged (the tuner's faithful mode). The
+        region's measured pixels differ between the two by SGBM's right-to-left path alone (under 1 % by
+        more than 1 px, tested)."""
+        lw = win.left_width
+        if self.refine or lw >= win.matched[0] or lw <= search_span(self.params):
+            return match_left(self.matchers, prep.left_m, prep.right_m)
+        part = match_left(self.matchers, np.ascontiguousarray(prep.left_m[:, :lw]),
+                          np.ascontiguousarray(prep.right_m[:, :lw]))
+        left16 = np.full((part.shape[0], win.matched[0]), (self.params.sgbm.min_disparity - 1) * 16, np.int16)
+        left16[:, :lw] = part
+        return left16
+
     def _measured(self, win: Window, left16: np.ndarray) -> np.ndarray:
-        """The left matcher's disparities over the crop, input px."""
-        meas = to_float(left16, self.params.sgbm.min_disparity, win.ratio)
-        if win.resized:
-            # Nearest, not linear: a measured value is one pixel's match, never a blend with NaN.
-            meas = cv2.resize(meas, win.crop_size, interpolation=cv2.INTER_NEAREST)
-        return meas
+        """The left matcher's disparities under the region, input px."""
+        min_d = self.params.sgbm.min_disparity
+        if not win.resized:
+            return to_float(left16[win.inner()], min_d)
+        # Nearest, not linear: a measured value is one pixel's match, never a blend with NaN.
+        return _upsample(win, to_float, left16, min_d, win.ratio, interpolation=cv2.INTER_NEAREST)
 
     def _wls_at_matched(self, win: Window) -> bool:
         return self.params.compute.wls_at == "matched" or not win.resized
 
     def _confidence(self, win: Window, left16: np.ndarray, right16: np.ndarray) -> np.ndarray:
-        """0..255 confidence over the crop, as WLS computes it for the guide it would be given."""
+        """0..255 confidence under the region, as WLS computes it for the guide it would be given."""
         # WLS given the full-resolution guide scales its threshold and roll-off by the width ratio.
         rf = 1.0 if self._wls_at_matched(win) else float(np.float32(win.matched[0]) / np.float32(win.crop_size[0]))
-        conf = lr_confidence(left16, right16, self.params.sgbm, rf)
-        if win.resized:
-            conf = cv2.resize(conf, win.crop_size, interpolation=cv2.INTER_LINEAR)
-        return conf
+        sg = self.params.sgbm
+        if not win.resized:
+            ys, xs = win.inner()
+            return lr_confidence(left16, right16, sg, rf, cols=(xs.start, xs.stop))[ys, xs]
+        if win.factor is None:
+            conf = lr_confidence(left16, right16, sg, rf)
+            return cv2.resize(conf, win.crop_size, interpolation=cv2.INTER_LINEAR)[win.inner()]
+        # Linear: one matched pixel more each side, so that the sub-block's border is never interpolated.
+        x0, _, x1, _ = win.inner_matched(margin=1)
+        return _upsample(win, lambda l16, r16: lr_confidence(l16, r16, sg, rf, cols=(x0, x1)), left16, right16,
+                         interpolation=cv2.INTER_LINEAR, margin=1)
 
     def _refine(self, win: Window, prep: Prepared, left16: np.ndarray, right16: np.ndarray) -> np.ndarray:
         """WLS-smoothed disparity over the crop, input px, NaN where invalid."""
@@ -172,6 +194,23 @@ class DisparityPipeline:
     def compute(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
         """(H, W) float32 disparity in px of the left image, NaN where invalid."""
         return self.run(left, right).disparity
+
+
+def _upsample(win: Window, fn, *args, interpolation: int, margin: int = 0) -> np.ndarray:
+    """``fn(*args)`` (a map over the matched crop) resized to input px under the region only.
+
+    With a whole-number :attr:`Window.factor` k only the matched sub-block under the region
+    (``margin`` matched px more each side) is resized, by k: each input pixel gets the value the
+    whole crop's resize gives it (nearest: the same source pixel; linear: the same neighbours and
+    weights, given a margin of 1). Otherwise the whole crop is resized and cut."""
+    full = fn(*args)
+    k = win.factor
+    if k is None:
+        return cv2.resize(full, win.crop_size, interpolation=interpolation)[win.inner()]
+    x0, y0, x1, y1 = win.inner_matched(margin)
+    up = cv2.resize(full[y0:y1, x0:x1], ((x1 - x0) * k, (y1 - y0) * k), interpolation=interpolation)
+    ys, xs = win.inner()
+    return up[ys.start - y0 * k:ys.stop - y0 * k, xs.start - x0 * k:xs.stop - x0 * k]
 
 
 def flight_pipeline(params: StereoParams) -> DisparityPipeline:

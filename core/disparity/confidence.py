@@ -40,20 +40,26 @@ LRC_THRESH_X16 = 24
 ROLL_OFF = 0.001
 
 
-def lr_confidence(left16: np.ndarray, right16: np.ndarray, sgbm: SGBMParams, resize_factor: float = 1.0
-                  ) -> np.ndarray:
+def lr_confidence(left16: np.ndarray, right16: np.ndarray, sgbm: SGBMParams, resize_factor: float = 1.0,
+                  cols: tuple[int, int] | None = None) -> np.ndarray:
     """(h, w) float32 0..255 left-right confidence of the left matcher's ``left16`` given the right
-    matcher's ``right16`` (both int16 x16, same shape)."""
+    matcher's ``right16`` (both int16 x16, same shape).
+
+    ``cols``: (c0, c1), compute only left columns c0..c1-1 (the rest is 0); each value is the
+    one the whole map would hold (the filters see the same neighbours)."""
     h, w = left16.shape
     lo = max(0, sgbm.min_disparity + sgbm.num_disparities)
     ro = max(0, -sgbm.min_disparity)
-    width = w - lo - ro
     conf = np.zeros((h, w), np.float32)
-    if width <= 0:
-        return conf
     rf = np.float32(resize_factor)
     roll = np.float32(ROLL_OFF) / (rf * rf)
     k = 2 * math.ceil(0.5 * sgbm.block_size) + 1
+    r = k // 2
+    # Left columns computed, c0..c1, and the right view's answered columns ro..re.
+    re = w - lo
+    c0, c1 = (lo, w - ro) if cols is None else (max(lo, cols[0]), min(w - ro, cols[1]))
+    if c1 <= c0 or re <= ro:
+        return conf
 
     def weight(disp16: np.ndarray) -> np.ndarray:
         # Filtered as float32 (exact for x16 disparities): OpenCV's sqrBoxFilter of int16 input, as
@@ -63,20 +69,24 @@ def lr_confidence(left16: np.ndarray, right16: np.ndarray, sgbm: SGBMParams, res
         var = cv2.sqrBoxFilter(disp, cv2.CV_32F, (k, k)) - mean * mean
         return np.maximum(np.float32(1.0) - roll * var, np.float32(0.0))
 
-    left_w = np.zeros((h, w), np.float32)
-    right_w = np.zeros((h, w), np.float32)
-    left_w[:, lo:lo + width] = weight(left16[:, lo:lo + width])
-    right_w[:, ro:ro + width] = weight(right16[:, ro:ro + width])
+    def weight_over(disp16: np.ndarray, a: int, b: int, lim_a: int, lim_b: int) -> np.ndarray:
+        """The weight of columns a..b of a view whose answered columns are lim_a..lim_b: filtered over
+        r more columns each side (inside those), so the border the filter sees is the whole map's."""
+        fa, fb = max(lim_a, a - r), min(lim_b, b + r)
+        return weight(disp16[:, fa:fb])[:, a - fa:b - fa]
 
-    cols = np.arange(lo, lo + width)
-    dl = left16[:, lo:lo + width].astype(np.int32)
-    ridx = cols[None, :] - (dl >> 4)
-    checked = (ridx >= ro) & (ridx < ro + width)
-    safe = np.where(checked, ridx, ro)
+    own = weight_over(left16, c0, c1, lo, w - ro)
+    dl = left16[:, c0:c1].astype(np.int32)
+    ridx = np.arange(c0, c1)[None, :] - (dl >> 4)
+    checked = (ridx >= ro) & (ridx < re)
+    # The right columns these left pixels can point at (within the answered ones).
+    ra = max(ro, min(c0 - max(sgbm.min_disparity + sgbm.num_disparities - 1, 0), re - 1))
+    rb = min(re, max(c1 + 1 - sgbm.min_disparity, ra + 1))    # +1: an unmatched pixel points one right
+    right_w = weight_over(right16, ra, rb, ro, re)
+    safe = np.clip(np.where(checked, ridx, ra), ra, rb - 1)
     rows = np.arange(h)[:, None]
     dr = right16[rows, safe].astype(np.int32)
     agree = np.abs(dl + dr) < int(rf * LRC_THRESH_X16)
-    own = left_w[:, lo:lo + width]
-    both = np.minimum(own, right_w[rows, safe])
-    conf[:, lo:lo + width] = np.where(checked, np.where(agree, both, np.float32(0.0)), own)
+    both = np.minimum(own, right_w[rows, safe - ra])
+    conf[:, c0:c1] = np.where(checked, np.where(agree, both, np.float32(0.0)), own)
     return conf * np.float32(255.0)

@@ -262,8 +262,17 @@ def test_without_refine_measured_and_confidence_are_unchanged_and_wls_is_skipped
     params = DEFAULT_PARAMS.replace(**changes)
     full = DisparityPipeline(params).run(f.left, f.right)
     lean = DisparityPipeline(params, refine=False).run(f.left, f.right)
-    assert np.array_equal(full.measured, lean.measured, equal_nan=True)
-    assert np.array_equal(full.confidence, lean.confidence)
+    if "compute.roi" not in changes:        # the full frame: the left matcher's crop is the whole image
+        assert np.array_equal(full.measured, lean.measured, equal_nan=True)
+        assert np.array_equal(full.confidence, lean.confidence)
+    else:
+        # Without the smoothing the left matcher skips the right matcher's margin: only SGBM's right-to-left
+        # path differs, so the region's measured pixels and confidence stay, but for a few.
+        both = np.isfinite(full.measured) & np.isfinite(lean.measured)
+        answered = np.isfinite(full.measured) | np.isfinite(lean.measured)
+        moved = (np.abs(full.measured - lean.measured) > 1.0)[both].sum() + (answered & ~both).sum()
+        assert answered.sum() > 0 and moved / answered.sum() < 0.02
+        assert (np.abs(full.confidence - lean.confidence) > 0.1).mean() < 0.02
     assert np.array_equal(lean.disparity, lean.measured, equal_nan=True)
     assert not np.array_equal(full.disparity, full.measured, equal_nan=True)    # WLS did fill in
     assert "wls" in full.timings_ms and "wls" not in lean.timings_ms
