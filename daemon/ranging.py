@@ -328,12 +328,14 @@ class Ranger:
 
         The object's box (one coarse pixel more all round, inside the ROI) is matched at
         full resolution from :data:`FINE_BELOW_REL` of the search below the coarse
-        disparity. Only pixels the coarse pass gave to the object count: measured
-        confidently at the object's depth or nearer, or not measured at all (a thin
-        twig in front is often lost at half scale; so are the columns SGBM leaves
-        unanswered). The narrow search would
-        match the background around a thin branch to something inside it, and without
-        a right matcher nothing in the fine pass tells such a match from a true one.
+        disparity. Every pixel counts except those the coarse pass measured confidently
+        behind the object: measured at the object's depth or nearer, measured with low
+        confidence, or not measured at all (a thin twig in front is often lost at half
+        scale, or matched there with the low confidence the depth-edge weight gives a
+        pixel that is all edge; so are the columns SGBM leaves unanswered). The narrow
+        search would match the background around a thin branch to something inside it,
+        and without a right matcher nothing in the fine pass tells such a match from a
+        true one.
         Fine pixels at the search's lower end (farther than searched) do not count
         either. The fine object (its front and its own band) needs as many pixels as a
         coarse one (``min_valid_px`` coarse matched pixels): the same image area, not a
@@ -370,7 +372,7 @@ class Ranger:
             return m
         box = (slice(by0, by1), slice(bx0, bx1))
         with np.errstate(invalid="ignore"):
-            mine = (ok[box] & (disp[box] >= obj.lower)) | ~np.isfinite(disp[box])
+            mine = ~(ok[box] & (disp[box] < obj.lower))      # all but what the coarse pass saw confidently behind
             fok = self._usable(fm.measured, fm.confidence) & (fm.measured >= fm.d_lo + 1.0) & mine
         fobj = self._object(fm.measured, fm.confidence, fok, 1.0, self.px, FINE_MARGIN_PX)
         if fobj is None or fobj.n < self.config.min_valid_px * self.px * self.px:

@@ -441,6 +441,31 @@ def test_the_fine_pass_looks_at_pixels_the_coarse_pass_did_not_measure():
     assert m.distance_m == pytest.approx(fb / 40.0, rel=1e-3)
 
 
+def test_the_fine_pass_looks_at_pixels_the_coarse_pass_measured_with_low_confidence():
+    """A thin twig is all depth edge: the coarse pass may match it, but the confidence's depth-edge weight
+    puts it under min_confidence (the leafy near-sweep frame at 1.5 m read 11 % farther). Its pixels are not
+    the background's: the fine pass, which sees the twig nearer, takes it."""
+    fb = 350.0 * 0.063
+    d = _coarse_wall_and_branch(40.0)
+    conf = np.ones_like(d)
+    d[170:176, 213:426] = 30.0                      # matched, even behind the branch, but not confidently
+    conf[170:176, 213:426] = 0.2
+    calls = []
+
+    def twig(shape):
+        y0 = calls[-1][0][1]
+        out = np.full(shape, 40.0, np.float32)
+        out[170 - y0:176 - y0] = 50.0
+        return out
+
+    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, conf, fine=_fine_answer(twig, calls)))
+    assert m.refined and m.distance_m == pytest.approx(fb / 50.0, rel=1e-3)
+    conf[170:176, 213:426] = 1.0                    # confidently behind: the background's, as before
+    calls.clear()
+    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, conf, fine=_fine_answer(twig, calls)))
+    assert m.distance_m == pytest.approx(fb / 40.0, rel=1e-3)
+
+
 def test_the_fine_pass_looks_into_columns_the_coarse_pass_could_not_answer():
     """The band SGBM leaves unanswered at the image's left edge can hide the nearest part of the object
     (the real Cloth1 pair read 7 % farther): the fine box reaches over it."""
