@@ -390,3 +390,64 @@ def test_the_fine_pass_near_the_image_edge_leaves_what_it_cannot_match_unmeasure
     assert fm.measured.shape == fm.confidence.shape == (40, 110)
     assert np.isnan(fm.measured[:, :30]).all() and (fm.confidence[:, :30] == 0).all()   # x < d0 = 40
     assert fine.match(f.left, f.right, (10, 100, 60, 140), 40) is None                  # nothing left to match
+
+
+def test_confidence_over_some_columns_is_the_whole_maps_value_for_value(motorcycle):
+    """lr_confidence(cols=...) computes only those columns, each as the whole map holds it."""
+    from uav_depth.core.disparity.confidence import lr_confidence
+    from uav_depth.core.disparity.match import build_matchers
+
+    left, right, _ = motorcycle
+    for changes in ({}, {"sgbm.min_disparity": -16, "sgbm.num_disparities": 64}):
+        params = DEFAULT_PARAMS.replace(**changes)
+        m = build_matchers(params)
+        l16, r16 = m.left.compute(left, right), m.right.compute(right, left)
+        whole = lr_confidence(l16, r16, params.sgbm)
+        w = l16.shape[1]
+        for c0, c1 in ((0, w), (150, 151), (200, 420), (w - 90, w)):
+            part = lr_confidence(l16, r16, params.sgbm, cols=(c0, c1))
+            assert np.array_equal(part[:, c0:c1], whole[:, c0:c1])
+            assert not part[:, :c0].any() and not part[:, c1:].any()
+
+
+def test_windows_at_a_whole_number_scale_are_multiples_of_it_and_hold_the_region():
+    from uav_depth.core.disparity.window import window
+
+    for scale, (w, h) in ((0.5, (1280, 720)), (0.25, (640, 360)), (0.125, (1280, 720)), (0.5, (333, 201))):
+        params = DEFAULT_PARAMS.replace(**{"compute.scale": scale, "compute.roi": (0.33, 0.33, 0.67, 0.67)})
+        win = window(params, w, h)
+        k = round(1 / scale)
+        cw, ch = win.crop_size
+        x0, y0, x1, y1 = win.crop
+        rx0, ry0, rx1, ry1 = win.region
+        assert 0 <= x0 <= rx0 and rx1 <= x1 <= w and 0 <= y0 <= ry0 and ry1 <= y1 <= h
+        if cw < w or w % k == 0:
+            assert cw % k == 0 and win.factor == k and win.matched == (cw // k, ch // k)
+
+
+def test_the_flight_maps_under_the_region_equal_the_whole_crops_resize(small_frame):
+    """Measured and confidence come from the sub-block under the region: the same values a resize of the
+    whole matched crop gives there (nearest: bit for bit; linear: to float rounding)."""
+    import cv2
+
+    from uav_depth.core.disparity import DisparityPipeline
+    from uav_depth.core.disparity.confidence import lr_confidence
+    from uav_depth.core.disparity.match import to_float
+    from uav_depth.core.disparity.prepare import prepare
+    from uav_depth.core.disparity.window import window
+
+    _, f = small_frame
+    params = DEFAULT_PARAMS.replace(**{"compute.roi": ROI, "compute.scale": 0.5, "sgbm.num_disparities": 64,
+                                       "compute.wls_at": "matched"})
+    pipe = DisparityPipeline(params, refine=False)
+    res = pipe.run(f.left, f.right)
+    h, w = f.left.shape[:2]
+    win = window(params, w, h)
+    prep = prepare(params.compute, win, f.left, f.right)
+    l16 = pipe._match_left(win, prep)
+    r16 = pipe.matchers.right.compute(prep.right_m, prep.left_m)
+    meas = cv2.resize(to_float(l16, 0, win.ratio), win.crop_size, interpolation=cv2.INTER_NEAREST)[win.inner()]
+    conf = cv2.resize(lr_confidence(l16, r16, params.sgbm), win.crop_size, interpolation=cv2.INTER_LINEAR)
+    conf = np.clip(conf[win.inner()] / 255.0, 0.0, 1.0)
+    assert np.array_equal(res.measured[win.outer()], meas, equal_nan=True)
+    assert np.allclose(res.confidence[win.outer()], conf, atol=1e-5)
