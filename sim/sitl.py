@@ -112,6 +112,31 @@ class VehicleState:
     pitch: float
     yaw: float
     t: float = 0.0
+    #: LOCAL_POSITION_NED's velocity (m/s, NED) and ATTITUDE's body rates (rad/s, roll, pitch, yaw).
+    velocity_ned: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    body_rates: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: When each message arrived (monotonic s); None: ``t``.
+    t_position: float | None = None
+    t_attitude: float | None = None
+
+    def at(self, t: float) -> "VehicleState":
+        """The state predicted for monotonic time ``t``: constant velocity and constant body rates.
+
+        Each message is carried forward from its own arrival (never backward); the
+        Euler angles move by the body rates turned into Euler rates (Z-Y-X).
+        """
+        tp = self.t if self.t_position is None else self.t_position
+        ta = self.t if self.t_attitude is None else self.t_attitude
+        dp, da = max(0.0, t - tp), max(0.0, t - ta)
+        pos = tuple(float(x + v * dp) for x, v in zip(self.position_ned, self.velocity_ned))
+        p, q, r = self.body_rates
+        sr, cr = math.sin(self.roll), math.cos(self.roll)
+        cp = max(1e-6, math.cos(self.pitch))
+        roll_rate = p + (q * sr + r * cr) * math.tan(self.pitch)
+        pitch_rate = q * cr - r * sr
+        yaw_rate = (q * sr + r * cr) / cp
+        return VehicleState(pos, self.roll + roll_rate * da, self.pitch + pitch_rate * da, self.yaw + yaw_rate * da,
+                            t, self.velocity_ned, self.body_rates, t, t)
 
     def camera(self, mount: CameraMount) -> tuple[np.ndarray, np.ndarray]:
         """(rotation (3, 3) camera axes in NED, camera centre (3,) NED m)."""
@@ -164,6 +189,10 @@ class SitlConfig:
     optical axis); None: from the start position toward the tree. ``pose_rate_hz``:
     rate requested for LOCAL_POSITION_NED and ATTITUDE. ``pose_timeout_s``: a pose
     older than this is not rendered (the frame source reports a loss instead).
+    ``predict_max_s``: how far past the older pose message a frame's pose may be
+    predicted (constant velocity and rates), so that the rendered frame shows the
+    vehicle where it is when the frame is delivered, not where it was when the
+    render began (0: never predicted; the frame is then as old as its pose).
     """
 
     tree_ned_m: tuple[float, float, float] | None = None
@@ -172,6 +201,7 @@ class SitlConfig:
     camera_pitch_deg: float = 0.0
     pose_rate_hz: float = 50.0
     pose_timeout_s: float = 1.0
+    predict_max_s: float = 0.1
 
     def __post_init__(self) -> None:
         for key, vec in (("--tree-ned", self.tree_ned_m), ("--camera-offset", self.camera_offset_m)):
@@ -186,13 +216,16 @@ class SitlConfig:
             raise ConfigError("--pose-rate-hz", "must be between 1 and 200", self.pose_rate_hz)
         if not 0.05 <= self.pose_timeout_s <= 60.0:
             raise ConfigError("--pose-timeout-s", "must be between 0.05 and 60", self.pose_timeout_s)
+        if not 0.0 <= self.predict_max_s <= 0.5:
+            raise ConfigError("--pose-predict-max-s", "must be between 0 (no prediction) and 0.5", self.predict_max_s)
 
     def describe(self, distance_m: float) -> str:
         tree = ("tree %g m in front of the start pose" % distance_m if self.tree_ned_m is None
                 else "tree at NED %s m" % list(self.tree_ned_m))
         yaw = "" if self.approach_yaw_deg is None else f", approached at heading {self.approach_yaw_deg:g} deg"
         return (f"sitl: {tree}{yaw}, camera at {list(self.camera_offset_m)} m pitched {self.camera_pitch_deg:g} deg, "
-                f"pose at {self.pose_rate_hz:g} Hz (stale after {self.pose_timeout_s:g} s)")
+                f"pose at {self.pose_rate_hz:g} Hz (stale after {self.pose_timeout_s:g} s, predicted up to "
+                f"{1000 * self.predict_max_s:.0f} ms ahead)")
 
     @property
     def mount(self) -> CameraMount:
@@ -230,12 +263,18 @@ class PoseTracker:
         self.clock = clock
         self.sysid = autopilot_sysid
         self._lock = threading.Lock()
-        self._position: tuple[tuple[float, float, float], float] | None = None
-        self._attitude: tuple[tuple[float, float, float], float] | None = None
+        #: (position, velocity, arrival) and (angles, body rates, arrival)
+        self._position: tuple[tuple[float, float, float], tuple[float, float, float], float] | None = None
+        self._attitude: tuple[tuple[float, float, float], tuple[float, float, float], float] | None = None
         self._anchor: Anchor | None = config.anchor(None, distance_m)
         self.messages = 0
-        #: When the vehicle was where the last pose returned puts it (monotonic s: the older message's arrival).
+        #: When the vehicle was where the last pose returned puts it (monotonic s: the older message's
+        #: arrival, or the time it was predicted for).
         self.pose_time: float | None = None
+        #: The vehicle state the last pose returned was made from (predicted, when it was).
+        self.pose_state: VehicleState | None = None
+        #: The source may ask for a pose predicted to a time (``__call__``'s ``at``).
+        self.predicts = config.predict_max_s > 0
 
     def on_message(self, msg: Any) -> None:
         """Take a LOCAL_POSITION_NED or ATTITUDE message (pymavlink); others are ignored."""
@@ -250,9 +289,11 @@ class PoseTracker:
             elif sysid != self.sysid:
                 return
             if kind == "LOCAL_POSITION_NED":
-                self._position = ((float(msg.x), float(msg.y), float(msg.z)), now)
+                self._position = ((float(msg.x), float(msg.y), float(msg.z)),
+                                  (float(msg.vx), float(msg.vy), float(msg.vz)), now)
             else:
-                self._attitude = ((float(msg.roll), float(msg.pitch), float(msg.yaw)), now)
+                self._attitude = ((float(msg.roll), float(msg.pitch), float(msg.yaw)),
+                                  (float(msg.rollspeed), float(msg.pitchspeed), float(msg.yawspeed)), now)
             self.messages += 1
             if self._anchor is None and self._position is not None and self._attitude is not None:
                 self._anchor = self.config.anchor(self._state_locked(), self.distance_m)
@@ -260,8 +301,10 @@ class PoseTracker:
     def _state_locked(self) -> VehicleState | None:
         if self._position is None or self._attitude is None:
             return None
-        (pos, tp), (att, ta) = self._position, self._attitude
-        return VehicleState(pos, att[0], att[1], att[2], min(tp, ta))
+        (pos, vel, tp), (att, rates, ta) = self._position, self._attitude
+        if not all(math.isfinite(v) for v in (*vel, *rates)):
+            vel, rates = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)   # unknown rates: no prediction
+        return VehicleState(pos, att[0], att[1], att[2], min(tp, ta), vel, rates, tp, ta)
 
     def state(self) -> VehicleState | None:
         with self._lock:
@@ -294,8 +337,10 @@ class PoseTracker:
         a = self.anchor
         return None if a is None else a.origin_ned + a.rotation @ np.array([0.0, 0.0, self.distance_m])
 
-    def __call__(self, t_s: float = 0.0) -> Pose:
-        """The rig pose now. Raises SourceError while there is no fresh pose (nothing is rendered)."""
+    def __call__(self, t_s: float = 0.0, at: float | None = None) -> Pose:
+        """The rig pose: the latest state's, or predicted for monotonic time ``at`` (at most
+        ``predict_max_s`` past the older message; never before it). Raises SourceError while
+        there is no fresh pose (nothing is rendered)."""
         with self._lock:
             state, anchor = self._state_locked(), self._anchor
         if state is None or anchor is None:
@@ -303,7 +348,9 @@ class PoseTracker:
         age = self.clock() - state.t
         if age > self.config.pose_timeout_s:
             raise SourceError(f"sitl: the autopilot's pose is {age:.1f} s old (limit {self.config.pose_timeout_s:g} s)")
-        self.pose_time = state.t
+        if at is not None and self.predicts:
+            state = state.at(min(at, state.t + self.config.predict_max_s)) if at > state.t else state
+        self.pose_time, self.pose_state = state.t, state
         return anchor.pose(state, self.config.mount)
 
 
@@ -341,9 +388,13 @@ class PoseRecorder:
     def pose_time(self) -> float | None:
         return self.tracker.pose_time
 
-    def __call__(self, t_s: float = 0.0) -> Pose:
-        pose = self.tracker(t_s)
-        state = self.tracker.state()
+    @property
+    def predicts(self) -> bool:
+        return self.tracker.predicts
+
+    def __call__(self, t_s: float = 0.0, at: float | None = None) -> Pose:
+        pose = self.tracker(t_s, at)
+        state = self.tracker.pose_state
         if state is not None:
             with self._lock:   # keyed by the pose's own time: the frame's capture time
                 self._log.append((state.t, state))

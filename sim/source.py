@@ -14,6 +14,16 @@ its pose was true, ``pose_time``, stamps the frame with that time, and a pose ti
 already delivered gives no new frame). Frames are paced at ``fps``;
 when rendering is slower than that, frames are skipped, never queued.
 
+A camera exposes a frame and delivers it; a ray-cast frame takes tens of
+milliseconds to exist. A pose provider that ``predicts`` (the SITL pose tracker) is
+asked for the pose at the time the render will be done (the 90th percentile of the
+last renders' durations from now), and the frame is stamped with that time and
+never delivered before it: it shows the vehicle where it is when the daemon gets
+the frame, as a camera with no transfer delay would, so the render's cost is not
+counted as the daemon's latency, and a wrong guess shows up as a late frame (its
+age at delivery) or as the prediction's error in the reading, never as a frame
+from the future.
+
 ``read_window`` (a callable, set by whoever knows what reads the frames: ``uav-depth
 sitl``) returns the part of the image that anything downstream reads, or None for
 all of it; only that part (and the truth ROI) is ray-cast, the rest of the frame is
@@ -23,6 +33,7 @@ pipeline reads its crops only, so at 640x360 this halves the render's cost.
 
 from __future__ import annotations
 
+import collections
 import math
 import threading
 import time
@@ -160,6 +171,7 @@ class SyntheticSource:
         self._t0 = 0.0
         self._next = 0
         self.renders = 0
+        self._render_s: collections.deque[float] = collections.deque(maxlen=16)
 
     def describe(self) -> str:
         c = self.config
@@ -178,10 +190,19 @@ class SyntheticSource:
     def close(self) -> None:
         self._cache = None
 
-    def _pose(self, t_s: float) -> Pose:
+    def render_lead_s(self) -> float:
+        """How long a render is expected to take: the 90th percentile of the last ones (0 before any)."""
+        if not self._render_s:
+            return 0.0
+        xs = sorted(self._render_s)
+        return xs[min(len(xs) - 1, int(math.ceil(0.9 * len(xs))) - 1)]
+
+    def _pose(self, t_s: float, at: float | None = None) -> Pose:
         if self.pose_provider is None:
             return self.config.scripted_pose(t_s)
         try:
+            if at is not None:
+                return self.pose_provider(t_s, at=at)
             return self.pose_provider(t_s)
         except SourceError:
             raise
@@ -224,19 +245,26 @@ class SyntheticSource:
             return None
         t_pose = self.clock()
         window = self.window()
-        rendered, fresh = self._render(self._pose(t_pose - self._t0), index, window)
+        at = t_pose + self.render_lead_s() if getattr(self.pose_provider, "predicts", False) else None
+        rendered, fresh = self._render(self._pose(t_pose - self._t0, at), index, window)
         truth = rendered.nearest_branch_distance(self.truth_roi)
+        if fresh:
+            self._render_s.append(self.clock() - t_pose)
         # The frame shows the rig where the pose puts it: it is as old as that pose (a SITL pose
-        # carries the time the vehicle was there, ``pose_time``), however long the render took, and
-        # a pose already shown is no new frame. A scripted pose is sampled now; its cached pair (the
-        # rig at rest) is captured again now.
+        # carries the time the vehicle was there, ``pose_time``, or the time it was predicted for),
+        # however long the render took, and a pose already shown is no new frame. A frame is never
+        # delivered before the time it shows. A scripted pose is sampled now; its cached pair (the rig
+        # at rest) is captured again now.
         pose_time = getattr(self.pose_provider, "pose_time", None)
         if pose_time is not None:
             if pose_time == self._pose_time:
                 self._stop.wait(min(timeout_s, period))
                 return None
             self._pose_time = pose_time
-            t_capture = min(t_pose, pose_time)
+            early = pose_time - self.clock()
+            if early > 0 and self._stop.wait(early):
+                return None
+            t_capture = pose_time
         else:
             t_capture = t_pose if fresh else self.clock()
         self._next = index + 1

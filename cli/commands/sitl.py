@@ -43,6 +43,11 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "20 ms old when its render starts)")
     g.add_argument("--pose-timeout-s", type=float, default=1.0, metavar="S",
                    help="an autopilot pose older than this is not rendered: no measurement is sent (default 1)")
+    g.add_argument("--pose-predict-max-s", type=float, default=0.1, metavar="S",
+                   help="render each frame at the pose predicted (constant velocity and rates) for when its render "
+                        "is done, at most S s past the latest pose message, so the frame shows where the vehicle "
+                        "is when the daemon gets it (default 0.1; 0: the pose as received, the render's time then "
+                        "counts as latency)")
     g.add_argument("--wait-s", type=float, default=0.0, metavar="S",
                    help="give up (exit 69) when the autopilot's first pose has not come within S s; nothing is "
                         "sent meanwhile (default 0: wait as long as it takes; ArduPilot SITL streams its pose "
@@ -93,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
         sitl = SitlConfig(tree_ned_m=tuple(args.tree_ned) if args.tree_ned else None,
                           approach_yaw_deg=args.approach_yaw_deg, camera_offset_m=tuple(args.camera_offset),
                           camera_pitch_deg=args.camera_pitch_deg, pose_rate_hz=args.pose_rate_hz,
-                          pose_timeout_s=args.pose_timeout_s)
+                          pose_timeout_s=args.pose_timeout_s, predict_max_s=args.pose_predict_max_s)
         if not 0 <= args.wait_s <= 3600:
             raise ConfigError("--wait-s", "must be between 0 (no limit) and 3600", args.wait_s)
         if not 0 <= args.listen_s <= 60:

@@ -153,7 +153,8 @@ def test_fixed_tree_is_approached_from_the_start_position():
     (dict(camera_pitch_deg=90.0), "--camera-pitch-deg must be above -90 and below 90, but got 90.0"),
     (dict(pose_rate_hz=0.5), "--pose-rate-hz must be between 1 and 200, but got 0.5"),
     (dict(approach_yaw_deg=400.0), "--approach-yaw-deg must be between -360 and 360"),
-], ids=["tree", "offset", "pitch", "rate", "yaw"])
+    (dict(predict_max_s=0.6), "--pose-predict-max-s must be between 0 (no prediction) and 0.5, but got 0.6"),
+], ids=["tree", "offset", "pitch", "rate", "yaw", "predict"])
 def test_bad_sitl_settings(kwargs, message):
     with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)")):
         SitlConfig(**kwargs)
@@ -199,3 +200,47 @@ def test_scripted_pose_stops_once_an_autopilot_is_heard():
         scripted(3.0)
     forced = ScriptedPose(lambda t: Pose.forward(0.1 * t), lambda: (1, 1), force=True)
     np.testing.assert_allclose(forced(3.0).position, Pose.forward(0.3).position)
+
+
+def test_a_state_is_predicted_forward_at_constant_velocity_and_rates_never_backward():
+    s = VehicleState((1.0, 2.0, -3.0), 0.0, 0.0, 0.5, t=10.0, velocity_ned=(2.0, -1.0, 0.5),
+                     body_rates=(0.0, 0.0, 0.4), t_position=10.0, t_attitude=10.01)
+    p = s.at(10.05)
+    np.testing.assert_allclose(p.position_ned, (1.1, 1.95, -2.975))
+    assert p.yaw == pytest.approx(0.5 + 0.4 * 0.04)                  # attitude from its own arrival
+    assert p.t == p.t_position == p.t_attitude == 10.05
+    back = s.at(9.0)                                                  # never extrapolated backward
+    np.testing.assert_allclose(back.position_ned, s.position_ned)
+    assert back.yaw == s.yaw
+    # pitched, the body's yaw rate moves pitch and yaw through the Z-Y-X Euler rates
+    tilted = VehicleState((0.0, 0.0, 0.0), math.radians(30), math.radians(20), 0.0, t=0.0,
+                          body_rates=(0.0, 0.0, 1.0))
+    q = tilted.at(0.01)
+    assert q.pitch == pytest.approx(math.radians(20) - 0.01 * math.sin(math.radians(30)))
+    assert q.yaw == pytest.approx(0.01 * math.cos(math.radians(30)) / math.cos(math.radians(20)))
+
+
+def test_the_tracker_predicts_the_pose_for_the_time_asked_within_its_limit():
+    clock = Clock()
+    tracker = PoseTracker(SitlConfig(tree_ned_m=(10.0, 0.0, -3.0), approach_yaw_deg=0.0, predict_max_s=0.1),
+                          distance_m=2.0, clock=clock)
+    tracker.on_message(_parsed(mavlink2.MAVLink_local_position_ned_message(0, 4.0, 0.0, -3.0, 2.0, 0.0, 0.0)))
+    tracker.on_message(_parsed(mavlink2.MAVLink_attitude_message(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)))
+    assert tracker.predicts
+    now = tracker(0.0)                                 # no time asked: the pose as received
+    assert tracker.pose_time == 100.0
+    ahead = tracker(0.0, at=100.04)                    # 2 m/s north for 40 ms: 8 cm nearer the tree
+    assert tracker.pose_time == 100.04
+    assert ahead.position[2] - now.position[2] == pytest.approx(0.08, abs=1e-6)
+    assert tracker.pose_state.position_ned[0] == pytest.approx(4.08)
+    far = tracker(0.0, at=101.0)                       # never further than predict_max_s past the pose
+    assert tracker.pose_time == pytest.approx(100.1)
+    assert far.position[2] - now.position[2] == pytest.approx(0.2, abs=1e-6)
+    off = PoseTracker(SitlConfig(tree_ned_m=(10.0, 0.0, -3.0), approach_yaw_deg=0.0, predict_max_s=0.0),
+                      distance_m=2.0, clock=clock)
+    assert not off.predicts
+    for msg in (mavlink2.MAVLink_local_position_ned_message(0, 4.0, 0.0, -3.0, 2.0, 0.0, 0.0),
+                mavlink2.MAVLink_attitude_message(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)):
+        off.on_message(_parsed(msg))
+    np.testing.assert_allclose(off(0.0, at=100.04).position, now.position)
+    assert off.pose_time == 100.0

@@ -95,3 +95,37 @@ def test_a_sitl_frame_is_as_old_as_its_pose_and_an_old_pose_is_no_new_frame():
     provider.pose_time = 100.005
     now[0] += 0.01
     assert src.read(0.01).t_capture == 100.005
+
+
+class PredictingPose:
+    """A pose provider that predicts (as the SITL pose tracker does): the pose for the time asked."""
+
+    predicts = True
+
+    def __init__(self):
+        self.pose_time = None
+        self.asked: list[float] = []
+
+    def __call__(self, t_s: float, at: float | None = None) -> Pose:
+        self.asked.append(at)
+        self.pose_time = at
+        return Pose.forward(0.5 + 0.01 * len(self.asked))       # a new pose every time: nothing cached
+
+
+def test_a_predicted_frame_shows_when_its_render_is_done_and_never_arrives_before_that():
+    import time
+    provider = PredictingPose()
+    cfg = Config(scene=SceneConfig(width=160, height=90, focal_px=90.0, seed=2), fps=1000.0)
+    src = SyntheticSource(cfg, pose_provider=provider)
+    src.open()
+    assert src.render_lead_s() == 0.0            # no read rendered yet: nothing to go by
+    for i in range(4):
+        t_read = time.monotonic()
+        lead = src.render_lead_s()
+        frame = src.read(0.5)
+        delivered = time.monotonic()
+        assert frame is not None
+        assert provider.asked[-1] == pytest.approx(t_read + lead, abs=0.005)    # asked for render's end
+        assert frame.t_capture == provider.asked[-1]                            # stamped with it
+        assert delivered >= frame.t_capture                                      # never from the future
+        assert (lead > 0) == (i > 0)             # from the second read on, the renders measured so far
