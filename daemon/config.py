@@ -96,6 +96,7 @@ class MavlinkConfig:
     target_system: int = 0
     target_component: int = 0
     bind_address: str | None = None
+    proximity_commit: bool = False
 
     KEYS = (
         Key("url", "str", "udpout:127.0.0.1:14550", "pymavlink connection string (udpout, udpin, tcp, tcpin, serial)",
@@ -122,6 +123,10 @@ class MavlinkConfig:
         Key("bind_address", "str", None, "udpout: local address to send from (an interface's address); null: the "
             "address the route to the autopilot uses (127.0.0.1 for a loopback autopilot), never 0.0.0.0",
             optional=True, check=_check_ip),
+        Key("proximity_commit", "bool", False, "follow each DISTANCE_SENSOR at once with a copy stamped 1 ms "
+            "earlier: ArduPilot's MAVLink proximity backend (PRXn_TYPE 2) holds a reading until a message with "
+            "another time_boot_ms arrives, so without the copy avoidance acts on each reading one frame late "
+            "(docs/wire.md); on for ArduPilot proximity, harmless elsewhere (twice the messages)"),
     )
 
 

@@ -11,7 +11,9 @@ DISTANCE_SENSOR: both autopilots then time out to "no data" (ArduPilot after
 ``min_distance`` is the minimum range rounded down, less 1 cm, so a reading at the
 minimum is strictly above it (PX4 drops ``current <= min``); ``time_boot_ms`` is
 the measurement's capture time (CLOCK_MONOTONIC: time since the companion booted),
-so it is strictly increasing and never repeated.
+so it is strictly increasing from one reading to the next. With ``mavlink.proximity_commit``
+each reading is followed at once by one copy stamped 1 ms earlier (ArduPilot's MAVLink
+proximity backend applies a reading only when a message with another stamp arrives).
 
 :class:`MavlinkLink` owns the transport (:mod:`.mavlink_transport`) on one I/O
 thread: it connects and reconnects (at most every 0.25 s), reads a bounded amount
@@ -31,6 +33,7 @@ Longer than 400 lines because the wire contract, the send clock and the link sha
 from __future__ import annotations
 
 import collections
+import dataclasses
 import hashlib
 import logging
 import math
@@ -107,6 +110,9 @@ SENDING = (MEASURING, TOO_CLOSE)
 STATE_BLIND = {"boot": STARTING, "critical": CAMERA_LOST, "standby": SOURCE_ENDED, "poweroff": SHUTTING_DOWN}
 #: A STATUSTEXT per condition change, at most this often.
 STATUSTEXT_MIN_S = 1.0
+
+#: The queue kind of ``mavlink.proximity_commit``'s copy: it replaces an unsent older copy, never a reading.
+COMMIT_KIND = "DISTANCE_SENSOR commit"
 
 
 def boot_ms(t: float, t_start: float = 0.0) -> int:
@@ -372,10 +378,14 @@ class MavlinkLink:
                                                           0, 0, MAV_STATE[state]), kind="HEARTBEAT")
 
     def distance_sensor(self, r: DistanceReport, sensor_type: int, sensor_id: int, orientation: int,
-                        t_capture: float, max_age_s: float) -> bool:
-        """Queue the DISTANCE_SENSOR of a report that sends one (see :func:`distance_report`)."""
+                        t_capture: float, max_age_s: float, kind: str = "DISTANCE_SENSOR") -> bool:
+        """Queue the DISTANCE_SENSOR of a report that sends one (see :func:`distance_report`).
+
+        ``kind``: what a newer message replaces while this one waits (:data:`COMMIT_KIND` for the
+        proximity commit copy, so that it never replaces the reading it follows).
+        """
         assert r.current_distance is not None, "a blind report sends nothing"
-        return self.send_measurement("DISTANCE_SENSOR", lambda mav: mav.distance_sensor_encode(
+        return self.send_measurement(kind, lambda mav: mav.distance_sensor_encode(
             r.time_boot_ms, r.min_distance, r.max_distance, r.current_distance, sensor_type, sensor_id,
             orientation, r.covariance, horizontal_fov=r.horizontal_fov, vertical_fov=r.vertical_fov,
             quaternion=(0.0, 0.0, 0.0, 0.0), signal_quality=r.signal_quality), t_capture, max_age_s)
@@ -635,7 +645,8 @@ class SendClock:
     Each estimate is sent at most once, with time_boot_ms = its capture time; an
     estimate not newer than the last one sent is never sent; at most
     ``mavlink.rate_hz`` DISTANCE_SENSOR per second (a newer estimate replaces one
-    waiting for its slot). Blind: nothing is sent.
+    waiting for its slot). Blind: nothing is sent. ``mavlink.proximity_commit``: each
+    reading sent is followed by its copy stamped 1 ms earlier (not counted in ``ticks``).
     """
 
     def __init__(self, link: MavlinkLink, config: MavlinkConfig, max_age_s: float,
@@ -704,6 +715,13 @@ class SendClock:
                 and report.time_boot_ms > self._last_stamp and now - self._last_send_t >= self._period()):
             self.link.distance_sensor(report, self.sensor_type, self.config.sensor_id, self.orientation,
                                       est.t_capture, self.max_age_s)
+            if self.config.proximity_commit and report.time_boot_ms > 0:
+                # ArduPilot's MAVLink proximity backend keeps a reading pending until a message with
+                # another time_boot_ms arrives: this copy (the same measurement, stamped 1 ms earlier,
+                # so never newer than it is) closes it now instead of a frame later.
+                self.link.distance_sensor(dataclasses.replace(report, time_boot_ms=report.time_boot_ms - 1),
+                                          self.sensor_type, self.config.sensor_id, self.orientation,
+                                          est.t_capture, self.max_age_s, kind=COMMIT_KIND)
             self._last_sent, self._last_stamp, self._last_send_t = est, report.time_boot_ms, now
             self.ticks += 1
             self.valid_sent += report.valid

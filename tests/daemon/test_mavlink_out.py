@@ -159,6 +159,43 @@ def test_send_clock_sends_each_estimate_once_stamped_with_its_capture_time():
     assert told
 
 
+def test_proximity_commit_follows_each_reading_with_its_copy_stamped_1_ms_earlier():
+    # ArduPilot's AP_Proximity_MAV applies a DISTANCE_SENSOR only when a message with another
+    # time_boot_ms arrives: the copy closes each reading at once, and says nothing new.
+    port = free_port()
+    peer = Receiver(f"udpin:127.0.0.1:{port}", sysid=255, compid=190)
+    cfg = MavlinkConfig(url=f"udpout:127.0.0.1:{port}", rate_hz=50, proximity_commit=True)
+    link = MavlinkLink(cfg).start()
+    pub = Publisher(period_s=0.04)
+    clock = SendClock(link, cfg, 0.3, estimate=lambda: pub.est, limits=lambda: LIMITS, state=lambda: "active").start()
+    try:
+        ds = peer.wait_for("DISTANCE_SENSOR", count=20)
+        pub.blind = True
+        time.sleep(0.2)
+        t_blind = time.monotonic()
+        time.sleep(0.4)
+        blind = peer.of("DISTANCE_SENSOR", since=t_blind)
+    finally:
+        clock.stop()
+        pub.close()
+        link.close()
+        peer.close()
+    captured = {int(e.t_capture * 1000) & 0xFFFFFFFF for e in pub.published}
+    stamps = [m.time_boot_ms for m in ds]
+    start = next(i for i, t in enumerate(stamps) if t in captured)
+    pairs = list(zip(ds[start::2], ds[start + 1::2]))
+    assert len(pairs) >= 8
+    fields = lambda m: (m.current_distance, m.min_distance, m.max_distance, m.covariance,  # noqa: E731
+                        m.signal_quality, m.orientation, m.id)
+    for reading, copy in pairs:
+        assert reading.time_boot_ms in captured                  # the reading: its capture time
+        assert copy.time_boot_ms == reading.time_boot_ms - 1     # the copy: 1 ms earlier, never newer
+        assert fields(copy) == fields(reading)                   # the same measurement
+    readings = [r.time_boot_ms for r, _ in pairs]
+    assert all(b > a for a, b in zip(readings, readings[1:]))
+    assert blind == []                                           # blind: neither reading nor copy
+
+
 def test_subscribe_and_message_interval_over_the_same_connection():
     port = free_port()
     autopilot = Receiver(f"udpin:127.0.0.1:{port}", sysid=1, compid=1)
