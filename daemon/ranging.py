@@ -63,9 +63,22 @@ WIRE_SIGMA_MAX_M = math.sqrt(254.0) / 100.0
 #: matched confidently beyond the main search. Measured with the flight file (docs/ranging.md):
 #: branches at 0.08-0.27 m give 0.21-0.74, frames with nothing nearer than the minimum range at most 0.06.
 NEAR_BEYOND_SHARE = 0.15
+#: ... or at least this share matched beyond the main search where the main pass has no confident match, if
+#: those are at least NEAR_UNCONFIRMED_RATIO of the near pass's matches beyond it (a twig in front; false near
+#: matches on a repeating background lie where the main pass matched confidently). Measured
+#: (docs/ranging.md): twigs 0.13-0.28 m away 3.4-14 % at ratios 0.83-0.99, frames with nothing inside the
+#: minimum range at most 0.9 % at a ratio above 0.75 (1.6 % at 0.36).
+NEAR_UNCONFIRMED_SHARE = 0.02
+NEAR_UNCONFIRMED_RATIO = 0.75
 #: A frame that measures (almost) nothing right after a too-close one is still too close: the object
 #: that was nearer than the minimum range now fills the view, texture-less (docs/ranging.md).
 BLANK_VALID_FRACTION = 0.1
+#: ... and so is one that matches under BLANK_VALID_FRACTION of the ROI, and of its textured pixels, at any
+#: disparity either pass searches while at least this share of the ROI is textured in both views
+#: (:func:`uav_depth.core.disparity.near.textured`): nearer than the near pass can see (a few cm), the
+#: object's other view lies outside the right image. Measured (docs/ranging.md): such frames 1.8-53 %
+#: textured, 0-7 % matched; every frame with something in range matched at least 14 % of its ROI.
+TEXTURED_SHARE = 0.01
 #: The fine pass (``compute.fine_disparities``) searches from this share of its range below the coarse
 #: disparity: most of it above, where a coarse reading that was too far (the unsafe error) finds its object.
 FINE_BELOW_REL = 0.25
@@ -480,14 +493,41 @@ class Ranger:
         cfg = self.config
         nd = near.disparity[y0:y1, x0:x1]
         with np.errstate(invalid="ignore"):
-            beyond = nd > self.d_max
+            near_ok = np.isfinite(nd)
             if result.near_confidence is not None:
-                beyond &= result.near_confidence[y0:y1, x0:x1] >= cfg.min_confidence
+                near_ok &= result.near_confidence[y0:y1, x0:x1] >= cfg.min_confidence
+            beyond = near_ok & (nd > self.d_max)
+            # The main pass's confident matches at any disparity it searches (the far floor does not apply).
+            main = np.isfinite(result.measured[y0:y1, x0:x1])
+            if result.confidence is not None:
+                main &= result.confidence[y0:y1, x0:x1] >= cfg.min_confidence
         share = float(beyond.mean()) if beyond.size else 0.0
         if share >= NEAR_BEYOND_SHARE:
             b = nd[beyond]
             return (f"the near pass matches {share:.0%} of the ROI at disparities {np.median(b):.0f} px (median), "
                     f"beyond the search's {self.d_max:.0f} px: nearer than {self.limits.min_distance_m:.3f} m")
+        # A smaller near object (a twig in front): the near pass's matches beyond the search where the main
+        # pass has no confident match of its own (where it has one, the near match is the false one).
+        unconfirmed = beyond & ~main
+        n_beyond = int(beyond.sum())
+        u_share = float(unconfirmed.mean()) if unconfirmed.size else 0.0
+        if u_share >= NEAR_UNCONFIRMED_SHARE and unconfirmed.sum() >= NEAR_UNCONFIRMED_RATIO * n_beyond:
+            b = nd[unconfirmed]
+            return (f"the near pass matches {u_share:.1%} of the ROI at disparities {np.median(b):.0f} px (median), "
+                    f"beyond the search's {self.d_max:.0f} px, where the main pass matches nothing confidently: "
+                    f"nearer than {self.limits.min_distance_m:.3f} m")
+        if near.textured is None:
+            return None
+        tex = near.textured[y0:y1, x0:x1]
+        tex_share = float(tex.mean()) if tex.size else 0.0
+        if tex_share < TEXTURED_SHARE:
+            return None
+        matched = near_ok | main
+        m_all, m_tex = float(matched.mean()), float(matched[tex].mean())
+        if m_all < BLANK_VALID_FRACTION and m_tex < BLANK_VALID_FRACTION:
+            return (f"{tex_share:.0%} of the ROI is textured in both views but neither pass matches it at any "
+                    f"disparity it searches ({m_all:.0%} of the ROI matched): an object nearer than either search "
+                    f"fills the view, nearer than {self.limits.min_distance_m:.3f} m")
         return None
 
 

@@ -37,7 +37,7 @@ import numpy as np
 
 from uav_depth.core.disparity.confidence import lr_confidence
 from uav_depth.core.disparity.fine import FineMatch, FineMatcher
-from uav_depth.core.disparity.near import NearCheck, max_disparity_px, near_params
+from uav_depth.core.disparity.near import NearCheck, max_disparity_px, near_params, textured
 from uav_depth.core.disparity.match import Matchers, build_matchers, match_left, match_right, to_float
 from uav_depth.core.disparity.prepare import Prepared, check_pair, prepare
 from uav_depth.core.disparity.result import DisparityResult, Laps
@@ -83,8 +83,13 @@ class DisparityPipeline:
         if self._near is None:
             return res if fine is None else replace(res, fine=fine)
         laps = Laps()
-        near, _, _ = self._near._run(left, right)
-        check = NearCheck(near.measured, max_disparity_px(self.params))
+        near, nwin, nprep = self._near._run(left, right)
+        tex = None
+        if nwin is not None and nprep is not None:
+            tex = np.zeros(left.shape[:2], bool)
+            tex[nwin.outer()] = _upsample(nwin, textured, nprep.left_m, nprep.right_m,
+                                          interpolation=cv2.INTER_NEAREST) > 0
+        check = NearCheck(near.measured, max_disparity_px(self.params), tex)
         laps.lap("near")
         return DisparityResult(res.disparity, res.measured, res.confidence, res.warning,
                                {**res.timings_ms, **laps.ms}, near=check, near_confidence=near.confidence,

@@ -10,9 +10,11 @@ at least 0.125) searching 48 matched px from just before the main search's large
 direct evidence of a nearer object.
 
 Nearer still (a few centimetres) the object's other view lies outside the right
-image and nothing can be matched at all: the region is blank in both passes.
-Ranging keeps such a frame too close when the frame before it was
-(docs/ranging.md); a blank first frame is no measurement.
+image and nothing can be matched at all: the region is blank in both passes,
+though both views are textured (:func:`textured`). Ranging reports such a frame
+too close; a blank frame without texture (sky, a bare wall, a covered lens) is
+too close only right after a too-close one (docs/ranging.md), else no
+measurement.
 
 Ranging (``uav_depth.daemon.ranging``) decides "too close" from it.
 """
@@ -48,6 +50,25 @@ class NearCheck:
 
     disparity: np.ndarray
     max_disparity_px: float
+    #: (H, W) bool: both views textured here at the near pass's scale (:func:`textured`), False outside the
+    #: near pass's region; None when not computed.
+    textured: np.ndarray | None = None
+
+
+#: A pixel is textured when its grey gradient (Sobel magnitude, 8-bit grey, at the near pass's coarse scale,
+#: where the camera's noise is averaged over 8 x 8 input px) passes this in both views. Measured
+#: (docs/ranging.md, *Too close*): a branch 5-8 cm from the lens left 1.8-53 % of the region textured in
+#: both views, a sky-like ramp with noise of 8 grey levels (heavy gain) 0.1 %.
+TEXTURE_GRADIENT = 12.0
+
+
+def textured(left_m: np.ndarray, right_m: np.ndarray) -> np.ndarray:
+    """uint8 map of the near pass's prepared (grey, coarse) crop: 1 where both views are textured."""
+    def grad(g: np.ndarray) -> np.ndarray:
+        g = g.astype(np.float32)
+        return cv2.magnitude(cv2.Sobel(g, cv2.CV_32F, 1, 0), cv2.Sobel(g, cv2.CV_32F, 0, 1))
+
+    return ((grad(left_m) > TEXTURE_GRADIENT) & (grad(right_m) > TEXTURE_GRADIENT)).astype(np.uint8)
 
 
 def max_disparity_px(params: StereoParams) -> float:

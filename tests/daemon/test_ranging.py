@@ -4,6 +4,7 @@ import functools
 import math
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -248,6 +249,104 @@ def test_near_pass_evidence_makes_too_close():
     near[132:156] = np.nan                                         # 10 %: not enough evidence
     m = ranger().measure(DisparityResult(measured, measured, None, near=NearCheck(near, 63.0)))
     assert m.valid and m.distance_m == pytest.approx(0.5, rel=1e-3)
+
+
+def test_a_small_near_object_the_main_pass_does_not_match_is_too_close():
+    """Maps built by hand: the near pass matches 4 % of the ROI beyond the main search (a twig in front).
+    Where the main pass matched none of it confidently, that is a near object: too close. Where the main
+    pass matched those pixels confidently (at 0.5 m), the near matches are the false ones (a repeating
+    background): a distance, not too close."""
+    from uav_depth.core.disparity.near import NearCheck
+
+    fb = 350.0 * 0.063
+    measured = np.full((360, 640), fb / 0.5, np.float32)          # the main pass: something at 0.5 m
+    near = np.full((360, 640), np.nan, np.float32)
+    near[120:125, 213:426] = 90.0                                  # 4.2 % of the ROI at 0.245 m
+    blind = measured.copy()
+    blind[120:125, 213:426] = np.nan                               # ... which the main pass did not match
+    m = ranger().measure(DisparityResult(blind, blind, None, near=NearCheck(near, 63.0)))
+    assert m.too_close and "matches nothing confidently" in m.reason, m
+    m = ranger().measure(DisparityResult(measured, measured, None, near=NearCheck(near, 63.0)))
+    assert m.valid and m.distance_m == pytest.approx(0.5, rel=1e-3)
+    near[120:121, 213:426] = 90.0
+    near[121:125] = np.nan                                         # 0.8 %: under the significance floor
+    m = ranger().measure(DisparityResult(blind, blind, None, near=NearCheck(near, 63.0)))
+    assert not m.too_close
+
+
+def test_the_baseline_never_reads_a_branch_inside_its_minimum_range_farther():
+    """The manual baseline (minimum range 0.347 m) on the near sweep's ``varied`` seed 0: a branch at
+    0.25-0.32 m used to go out as 0.48-0.55 m, valid (quality 36-46); the near pass sees it beyond the
+    search where the main pass matched nothing: too close."""
+    from uav_depth.core.disparity import flight_pipeline
+    from uav_depth.sim.scene import vary
+
+    cfg = vary(SceneConfig(), np.random.default_rng([0, 101]), branch_distance_m=0.29)
+    frame = Scene(cfg).render(rng=np.random.default_rng(0))
+    r = Ranger(RangingConfig(), cfg.calibration, cfg.center_roi, DEFAULT_PARAMS)
+    m = r.measure(flight_pipeline(DEFAULT_PARAMS).run(frame.left, frame.right))
+    assert m.too_close and not m.valid, m
+
+
+def test_a_textured_region_that_nothing_matches_is_too_close():
+    """Maps built by hand: a quarter of the ROI textured in both views, 1.7 % matched by either pass: an object
+    nearer than either search fills the view (a few cm from the lens). Untextured (sky, a bare wall, a
+    covered lens) the same blank frame is no measurement; matched over 10 % of the ROI it is not blank."""
+    from uav_depth.core.disparity.near import NearCheck
+
+    measured = np.full((360, 640), np.nan, np.float32)
+    measured[120:122, 213:426] = 30.0                              # 1.7 % of the ROI matched
+    near = np.full((360, 640), np.nan, np.float32)
+    tex = np.zeros((360, 640), bool)
+    tex[120:150, 213:426] = True                                   # 25 % of the ROI textured in both views
+    m = ranger().measure(DisparityResult(measured, measured, None, near=NearCheck(near, 63.0, tex)))
+    assert m.too_close and not m.valid and "textured in both views" in m.reason, m
+    m = ranger().measure(DisparityResult(measured, measured, None, near=NearCheck(near, 63.0, tex & False)))
+    assert not m.too_close and not m.valid
+    measured[120:150, 213:426] = 30.0                              # 25 % matched: a scene, not a blank
+    m = ranger().measure(DisparityResult(measured, measured, None, near=NearCheck(near, 63.0, tex)))
+    assert not m.too_close
+
+
+@pytest.mark.parametrize("variant,seed,distance", [("plain", 0, 0.05), ("plain", 1, 0.07), ("varied", 1, 0.05),
+                                                   ("leafy", 0, 0.05)])
+def test_a_branch_a_few_centimetres_from_the_lens_is_too_close(variant, seed, distance):
+    """Nearer than the near pass can match (below 0.09 m with the flight file at 1280x720) the branch's other
+    view lies outside the right image: these frames were no measurement (quality 2-5), a single one could
+    not be told from sky. Both views are textured and nothing matches: too close, for both parameter sets."""
+    from uav_depth.core.disparity import flight_pipeline
+    from uav_depth.core.params import DEFAULT_PARAMS
+    from uav_depth.sim.scene import vary
+
+    cfg = {"plain": lambda: SceneConfig(seed=seed, branch_distance_m=distance, branch_radius_m=0.03),
+           "varied": lambda: vary(SceneConfig(), np.random.default_rng([seed, 101]), branch_distance_m=distance),
+           "leafy": lambda: SceneConfig.leafy(seed=seed, branch_distance_m=distance)}[variant]()
+    frame = Scene(cfg).render(rng=np.random.default_rng(seed))
+    for params in (load_params(FLIGHT_FILE), DEFAULT_PARAMS):
+        r = Ranger(RangingConfig(), cfg.calibration, cfg.center_roi, params)
+        m = r.measure(flight_pipeline(params).run(frame.left, frame.right))
+        assert m.too_close and not m.valid, m
+
+
+def test_a_sky_like_noisy_frame_is_not_too_close():
+    """A smooth ramp with heavy noise (8 grey levels) in both views, nothing else: not textured at the near
+    pass's scale, so a blank frame stays no measurement, never too close."""
+    from uav_depth.core.disparity import flight_pipeline
+
+    rng = np.random.default_rng(0)
+    flight = load_params(FLIGHT_FILE)
+    cfg = SceneConfig()
+
+    def view():
+        g = np.tile(np.linspace(150, 170, 1280, dtype=np.float32), (720, 1)) + rng.normal(0, 8, (720, 1280))
+        return cv2.cvtColor(np.clip(g, 0, 255).astype(np.uint8), cv2.COLOR_GRAY2BGR)
+
+    result = flight_pipeline(flight).run(view(), view())
+    assert result.near.textured is not None
+    x0, y0, x1, y1 = cfg.center_roi
+    assert result.near.textured[y0:y1, x0:x1].mean() < 0.005
+    m = Ranger(RangingConfig(), cfg.calibration, cfg.center_roi, flight).measure(result)
+    assert not m.too_close
 
 
 def test_a_blank_frame_right_after_too_close_stays_too_close():
