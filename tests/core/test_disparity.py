@@ -1,5 +1,7 @@
 import warnings
 
+import math
+
 import numpy as np
 import pytest
 
@@ -245,12 +247,51 @@ def _opencv_confidence(params, left, right):
 @pytest.mark.parametrize("changes", [{}, {"sgbm.block_size": 3, "sgbm.mode": "sgbm_3way"},
                                      {"sgbm.min_disparity": -16, "sgbm.num_disparities": 64}],
                          ids=["baseline", "block3-3way", "negative-min"])
-def test_confidence_is_opencv_wls_confidence_value_for_value(motorcycle, changes):
-    """The confidence stage computes WLS's map itself (so the smoothing can be skipped): bit for bit."""
+def test_confidence_is_opencv_wls_confidence_wherever_no_neighbour_is_unmatched(motorcycle, changes):
+    """The confidence stage computes WLS's map itself (so the smoothing can be skipped): bit for bit wherever
+    the depth-discontinuity boxes of the pixel and of its right partner hold no unmatched pixel; next to a
+    hole ours weighs the matched neighbours only (core/disparity/confidence.py), so it differs there only."""
+    import cv2
+
+    from uav_depth.core.disparity.match import build_matchers
+
     left, right, _ = motorcycle
     params = DEFAULT_PARAMS.replace(**changes)
+    sg = params.sgbm
     res = DisparityPipeline(params, refine=False).run(left, right)
-    assert np.array_equal(res.confidence, _opencv_confidence(params, left, right))
+    opencv = _opencv_confidence(params, left, right)
+    m = build_matchers(params)
+    l16, r16 = m.left.compute(left, right), m.right.compute(right, left)
+    k = 2 * math.ceil(0.5 * sg.block_size) + 1
+    box = np.ones((k, k), np.uint8)
+    left_holed = cv2.dilate((l16 < sg.min_disparity * 16).astype(np.uint8), box) > 0
+    r_ok = (r16 <= -sg.min_disparity * 16) & (r16 > -(sg.min_disparity + sg.num_disparities) * 16)
+    right_holed = cv2.dilate((~r_ok).astype(np.uint8), box) > 0
+    h, w = l16.shape
+    partner = np.clip(np.arange(w)[None, :] - (l16.astype(np.int32) >> 4), 0, w - 1)
+    clean = ~left_holed & ~right_holed[np.arange(h)[:, None], partner]
+    assert clean.mean() > 0.5
+    assert np.array_equal(res.confidence[clean], opencv[clean])
+    differ = res.confidence != opencv
+    assert differ.any() and not (differ & clean).any()
+
+
+def test_a_thin_object_with_a_few_unmatched_pixels_keeps_its_confidence():
+    """A 9-row branch at 44 px in front of a wall at 8 px, with one unmatched pixel in every 10 of its
+    columns (a saturated highlight): OpenCV counts the hole's invalid value as a disparity and weighs every
+    pixel within r of it 0; weighed over its matched neighbours the branch's middle row keeps confidence."""
+    from uav_depth.core.disparity.confidence import lr_confidence
+
+    sg = DEFAULT_PARAMS.sgbm                         # block 5: a 7 x 7 box
+    h, w = 40, 400
+    l16 = np.full((h, w), 8 * 16, np.int16)
+    l16[15:24] = 44 * 16
+    l16[19, ::10] = (sg.min_disparity - 1) * 16      # the holes, on the branch's middle row
+    r16 = np.full((h, w), -8 * 16, np.int16)
+    r16[15:24] = -44 * 16                             # the right view agrees everywhere (left-right check)
+    conf = lr_confidence(l16, r16, sg)[19, 200:300] / 255.0
+    matched = l16[19, 200:300] != (sg.min_disparity - 1) * 16
+    assert conf[matched].min() > 0.9
 
 
 @pytest.mark.parametrize("changes", [{}, {"compute.roi": ROI, "compute.scale": 0.5, "sgbm.num_disparities": 64},

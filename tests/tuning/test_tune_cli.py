@@ -210,9 +210,10 @@ def test_tune_refuses_to_write_a_worse_file_and_keeps_the_candidate_beside_it(ti
     good = tiny_session / "base.yaml"
     out.write_bytes(good.read_bytes())
     before = out.read_bytes()
-    # one random candidate against a base that is already good: it cannot beat it on the held-out frame
+    # one random candidate against a base that is already good: seed 5 draws one that loses on the held-out
+    # frames (12.18 vs 11.96; seed 3 drew one 0.01 better once the confidence weighed matched neighbours only)
     args = ["tune", tiny_session / "s", "--base", good, "--optimizer", "random", "--population", "2",
-            "--generations", "1", "--seed", "3", "--workers", "1", "--keys", "sgbm.uniqueness_ratio",
+            "--generations", "1", "--seed", "5", "--workers", "1", "--keys", "sgbm.uniqueness_ratio",
             "--no-progress", "--out", out]
     proc = cli(*args, "--store", tmp_path / "a.sqlite", check=False)
     assert proc.returncode == 1, proc.stdout
