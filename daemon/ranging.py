@@ -497,34 +497,42 @@ class Ranger:
             if result.near_confidence is not None:
                 near_ok &= result.near_confidence[y0:y1, x0:x1] >= cfg.min_confidence
             beyond = near_ok & (nd > self.d_max)
-            # The main pass's confident matches at any disparity it searches (the far floor does not apply).
-            main = np.isfinite(result.measured[y0:y1, x0:x1])
-            if result.confidence is not None:
-                main &= result.confidence[y0:y1, x0:x1] >= cfg.min_confidence
         share = float(beyond.mean()) if beyond.size else 0.0
         if share >= NEAR_BEYOND_SHARE:
             b = nd[beyond]
             return (f"the near pass matches {share:.0%} of the ROI at disparities {np.median(b):.0f} px (median), "
                     f"beyond the search's {self.d_max:.0f} px: nearer than {self.limits.min_distance_m:.3f} m")
-        # A smaller near object (a twig in front): the near pass's matches beyond the search where the main
-        # pass has no confident match of its own (where it has one, the near match is the false one).
-        unconfirmed = beyond & ~main
-        n_beyond = int(beyond.sum())
-        u_share = float(unconfirmed.mean()) if unconfirmed.size else 0.0
-        if u_share >= NEAR_UNCONFIRMED_SHARE and unconfirmed.sum() >= NEAR_UNCONFIRMED_RATIO * n_beyond:
-            b = nd[unconfirmed]
-            return (f"the near pass matches {u_share:.1%} of the ROI at disparities {np.median(b):.0f} px (median), "
-                    f"beyond the search's {self.d_max:.0f} px, where the main pass matches nothing confidently: "
-                    f"nearer than {self.limits.min_distance_m:.3f} m")
-        if near.textured is None:
+        main = None
+
+        def main_matched() -> np.ndarray:
+            # The main pass's confident matches at any disparity it searches (the far floor does not apply).
+            with np.errstate(invalid="ignore"):
+                m = np.isfinite(result.measured[y0:y1, x0:x1])
+                if result.confidence is not None:
+                    m &= result.confidence[y0:y1, x0:x1] >= cfg.min_confidence
+            return m
+
+        if share >= NEAR_UNCONFIRMED_SHARE:
+            # A smaller near object (a twig in front): the near pass's matches beyond the search where the main
+            # pass has no confident match of its own (where it has one, the near match is the false one).
+            main = main_matched()
+            unconfirmed = beyond & ~main
+            u_share = float(unconfirmed.mean())
+            if u_share >= NEAR_UNCONFIRMED_SHARE and unconfirmed.sum() >= NEAR_UNCONFIRMED_RATIO * beyond.sum():
+                b = nd[unconfirmed]
+                return (f"the near pass matches {u_share:.1%} of the ROI at disparities {np.median(b):.0f} px "
+                        f"(median), beyond the search's {self.d_max:.0f} px, where the main pass matches nothing "
+                        f"confidently: nearer than {self.limits.min_distance_m:.3f} m")
+        if near.textured is None or near_ok.mean() >= BLANK_VALID_FRACTION:
             return None
-        tex = near.textured[y0:y1, x0:x1]
+        matched = near_ok | (main_matched() if main is None else main)
+        m_all = float(matched.mean())
+        if m_all >= BLANK_VALID_FRACTION:
+            return None
+        # Blank: is it textured (an object nearer than either search) or not (sky, a bare wall)?
+        tex = near.textured()[y0:y1, x0:x1]
         tex_share = float(tex.mean()) if tex.size else 0.0
-        if tex_share < TEXTURED_SHARE:
-            return None
-        matched = near_ok | main
-        m_all, m_tex = float(matched.mean()), float(matched[tex].mean())
-        if m_all < BLANK_VALID_FRACTION and m_tex < BLANK_VALID_FRACTION:
+        if tex_share >= TEXTURED_SHARE and float(matched[tex].mean()) < BLANK_VALID_FRACTION:
             return (f"{tex_share:.0%} of the ROI is textured in both views but neither pass matches it at any "
                     f"disparity it searches ({m_all:.0%} of the ROI matched): an object nearer than either search "
                     f"fills the view, nearer than {self.limits.min_distance_m:.3f} m")

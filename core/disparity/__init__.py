@@ -84,11 +84,7 @@ class DisparityPipeline:
             return res if fine is None else replace(res, fine=fine)
         laps = Laps()
         near, nwin, nprep = self._near._run(left, right)
-        tex = None
-        if nwin is not None and nprep is not None:
-            tex = np.zeros(left.shape[:2], bool)
-            tex[nwin.outer()] = _upsample(nwin, textured, nprep.left_m, nprep.right_m,
-                                          interpolation=cv2.INTER_NEAREST) > 0
+        tex = None if nwin is None or nprep is None else functools.partial(_textured_map, nwin, nprep, left.shape[:2])
         check = NearCheck(near.measured, max_disparity_px(self.params), tex)
         laps.lap("near")
         return DisparityResult(res.disparity, res.measured, res.confidence, res.warning,
@@ -216,6 +212,13 @@ def _upsample(win: Window, fn, *args, interpolation: int, margin: int = 0) -> np
     up = cv2.resize(full[y0:y1, x0:x1], ((x1 - x0) * k, (y1 - y0) * k), interpolation=interpolation)
     ys, xs = win.inner()
     return up[ys.start - y0 * k:ys.stop - y0 * k, xs.start - x0 * k:xs.stop - x0 * k]
+
+
+def _textured_map(win: Window, prep: Prepared, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool: :func:`.near.textured` of a pass's prepared views, at input resolution under its region."""
+    tex = np.zeros(shape, bool)
+    tex[win.outer()] = _upsample(win, textured, prep.left_m, prep.right_m, interpolation=cv2.INTER_NEAREST) > 0
+    return tex
 
 
 def flight_pipeline(params: StereoParams) -> DisparityPipeline:

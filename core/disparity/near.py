@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -50,9 +51,10 @@ class NearCheck:
 
     disparity: np.ndarray
     max_disparity_px: float
-    #: (H, W) bool: both views textured here at the near pass's scale (:func:`textured`), False outside the
-    #: near pass's region; None when not computed.
-    textured: np.ndarray | None = None
+    #: ``textured()``: (H, W) bool, both views textured here at the near pass's scale (:func:`textured`),
+    #: False outside the near pass's region; computed when first asked for (ranging asks only for a frame
+    #: that is otherwise blank). None when not available.
+    textured: Callable[[], np.ndarray] | None = None
 
 
 #: A pixel is textured when its grey gradient (Sobel magnitude, 8-bit grey, at the near pass's coarse scale,
