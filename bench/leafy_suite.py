@@ -25,9 +25,10 @@ from typing import Any
 
 import numpy as np
 
-from scenebench import PARAM_SET_NAMES, Measurer, fmt_pct, param_sets, rel_err, render_cached
+from scenebench import PARAM_SET_NAMES, Measurer, ranging_config, fmt_pct, param_sets, rel_err, render_cached
 
 from uav_depth.cli.benchmark import machine_line
+from uav_depth.daemon.ranging import RangingConfig
 from uav_depth.sim.scene import SceneConfig, vary
 
 FARTHER_TOL = 0.05
@@ -41,9 +42,10 @@ def scene(i: int) -> SceneConfig:
                 foliage_front_rel=float(rng.uniform(0.1, 0.3)))
 
 
-def suite(n_scenes: int = 30, params_names=("baseline", "flight"), cache: bool = True) -> list[dict[str, Any]]:
+def suite(n_scenes: int = 30, params_names=("baseline", "flight"), cache: bool = True,
+          ranging: RangingConfig | None = None) -> list[dict[str, Any]]:
     """One row per (parameter set, scene)."""
-    measurers = {name: Measurer(p, SceneConfig()) for name, p in param_sets(params_names).items()}
+    measurers = {name: Measurer(p, SceneConfig(), ranging) for name, p in param_sets(params_names).items()}
     rows = []
     for i in range(n_scenes):
         cfg = scene(i)
@@ -98,15 +100,19 @@ def main(argv=None) -> None:
     ap.add_argument("--no-cache", action="store_true")
     ap.add_argument("--json", action="store_true", help="print rows and summary as JSON instead of the table")
     ap.add_argument("--per-scene", action="store_true", help="also print one line per scene")
+    ap.add_argument("--thin-guard-cm2", type=float, default=None,
+                    help="ranging.thin_guard_m2 in cm^2 (0: off; default: the config's, 4)")
     args = ap.parse_args(argv)
-    rows = suite(args.scenes, args.params, cache=not args.no_cache)
+    rows = suite(args.scenes, args.params, cache=not args.no_cache,
+                 ranging=ranging_config(args.thin_guard_cm2))
     summary = summarize(rows)
     if args.json:
         print(json.dumps({"summary": summary, "rows": rows}, indent=1))
         return
     print(machine_line())
     lo, hi = summary[0]["truth_range_m"]
-    print(f"leafy suite: {args.scenes} scenes 1280x720, truth {lo:.2f}..{hi:.2f} m (nearest significant object)")
+    print(f"leafy suite: {args.scenes} scenes 1280x720, truth {lo:.2f}..{hi:.2f} m (nearest significant object), "
+          f"thin guard {ranging_config(args.thin_guard_cm2).thin_guard_m2 * 1e4:g} cm^2")
     print(format_table(summary))
     if args.per_scene:
         for r in rows:

@@ -36,9 +36,11 @@ from typing import Any, Callable
 
 import numpy as np
 
-from scenebench import PARAM_SET_NAMES, Measurer, fmt_pct, flight_max_range_m, param_sets, rel_err, render_cached
+from scenebench import (PARAM_SET_NAMES, Measurer, flight_max_range_m, fmt_pct, param_sets, ranging_config, rel_err,
+                        render_cached)
 
 from uav_depth.cli.benchmark import machine_line
+from uav_depth.daemon.ranging import RangingConfig
 from uav_depth.sim.scene import SceneConfig, vary
 
 VARIANTS: dict[str, Callable[[float, int], SceneConfig]] = {
@@ -56,12 +58,12 @@ def distances(min_m: float, max_m: float, step_m: float) -> list[float]:
 
 
 def sweep(dists, seeds, variants=tuple(VARIANTS), params_names=("baseline", "flight"), cache: bool = True,
-          progress: bool = False) -> list[dict[str, Any]]:
+          progress: bool = False, ranging: RangingConfig | None = None) -> list[dict[str, Any]]:
     """One row per (parameter set, variant, seed, distance): truth, what the wire says, the judgement."""
     sets = param_sets(params_names)
     rows = []
     cal_cfg = SceneConfig()
-    measurers = {name: Measurer(p, cal_cfg) for name, p in sets.items()}
+    measurers = {name: Measurer(p, cal_cfg, ranging) for name, p in sets.items()}
     t0 = time.monotonic()
     total = len(variants) * len(seeds) * len(dists)
     done = 0
@@ -142,19 +144,22 @@ def main(argv=None) -> None:
     ap.add_argument("--params", nargs="+", default=["baseline", "flight"], choices=PARAM_SET_NAMES)
     ap.add_argument("--no-cache", action="store_true")
     ap.add_argument("--json", action="store_true", help="print rows and summary as JSON instead of the table")
+    ap.add_argument("--thin-guard-cm2", type=float, default=None,
+                    help="ranging.thin_guard_m2 in cm^2 (0: off; default: the config's, 4)")
     ap.add_argument("--per-distance", action="store_true", help="also print one line per distance")
     args = ap.parse_args(argv)
     max_m = args.max_m if args.max_m is not None else flight_max_range_m()
     dists = list(QUICK_DISTANCES) if args.quick else distances(args.min_m, max_m, args.step_m)
     seeds = list(range(2 if args.quick else args.seeds))
-    rows = sweep(dists, seeds, args.variants, args.params, cache=not args.no_cache, progress=not args.json)
+    rows = sweep(dists, seeds, args.variants, args.params, cache=not args.no_cache, progress=not args.json,
+                 ranging=ranging_config(args.thin_guard_cm2))
     summary = summarize(rows)
     if args.json:
         print(json.dumps({"summary": summary, "rows": rows}, indent=1))
         return
     print(machine_line())
     print(f"near sweep: {len(dists)} distances {dists[0]:.2f}..{dists[-1]:.2f} m, seeds {seeds}, variants "
-          f"{args.variants}, 1280x720 f=700 px B=0.063 m")
+          f"{args.variants}, 1280x720 f=700 px B=0.063 m, thin guard {ranging_config(args.thin_guard_cm2).thin_guard_m2 * 1e4:g} cm^2")
     print(format_table(summary))
     if args.per_distance:
         for r in rows:

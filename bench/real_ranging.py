@@ -40,7 +40,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from scenebench import PARAM_SET_NAMES, ROOT, fmt_pct, param_sets
+from scenebench import PARAM_SET_NAMES, ROOT, fmt_pct, param_sets, ranging_config
 
 from uav_depth.cli.benchmark import machine_line
 from uav_depth.core.calibration import Calibration
@@ -79,7 +79,8 @@ def calibration_for(gt: np.ndarray) -> Calibration:
                        cx=(w - 1) / 2.0, cy=(h - 1) / 2.0)
 
 
-def evaluate(data: Path, params_names=("baseline", "flight"), scenes=SCENES) -> list[dict[str, Any]]:
+def evaluate(data: Path, params_names=("baseline", "flight"), scenes=SCENES,
+             ranging: RangingConfig | None = None) -> list[dict[str, Any]]:
     """One row per (scene, parameter set): reference and measured distance, relative error."""
     sets = param_sets(params_names)
     rows = []
@@ -89,7 +90,7 @@ def evaluate(data: Path, params_names=("baseline", "flight"), scenes=SCENES) -> 
         roi = default_roi(cal.width, cal.height)
         ref_m = Ranger(RangingConfig(), cal, roi, DEFAULT_PARAMS).measure(DisparityResult(gt, gt, None))
         for pname, params in sets.items():
-            m = Ranger(RangingConfig(), cal, roi, params).measure(flight_pipeline(params).run(left, right))
+            m = Ranger(ranging or RangingConfig(), cal, roi, params).measure(flight_pipeline(params).run(left, right))
             ref = ref_m.distance_m
             err = None if (m.distance_m is None or ref is None) else (m.distance_m - ref) / ref
             rows.append({"scene": name, "split": "held-out" if name in HELD_OUT else "dev", "params": pname,
@@ -141,11 +142,13 @@ def main(argv=None) -> None:
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA, help="folder of the 17 scene folders")
     ap.add_argument("--params", nargs="+", default=["baseline", "flight"], choices=PARAM_SET_NAMES)
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--thin-guard-cm2", type=float, default=None,
+                    help="ranging.thin_guard_m2 in cm^2 (0: off; default: the config's, 4)")
     args = ap.parse_args(argv)
     if not (args.data / SCENES[0] / "disp1.png").is_file():
         sys.exit(f"real_ranging: no Middlebury 2006 scenes at {args.data} (need <scene>/view1.png, view5.png, "
                  f"disp1.png); pass --data DIR")
-    rows = evaluate(args.data, args.params)
+    rows = evaluate(args.data, args.params, ranging=ranging_config(args.thin_guard_cm2))
     summary = summarize(rows)
     if args.json:
         print(json.dumps({"summary": summary, "rows": rows, "held_out": list(HELD_OUT)}, indent=1))

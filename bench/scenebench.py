@@ -118,6 +118,11 @@ class Measurer:
                 "quality": rep.signal_quality, "ms": ms, "reason": m.reason}
 
 
+def ranging_config(thin_guard_cm2: float | None = None) -> RangingConfig:
+    """The ranging section the benchmarks measure with: the default, or with ``thin_guard_m2`` set (cm^2; 0: off)."""
+    return RangingConfig() if thin_guard_cm2 is None else RangingConfig(thin_guard_m2=thin_guard_cm2 * 1e-4)
+
+
 def rel_err(reported: float | None, truth: float) -> float | None:
     if reported is None or not math.isfinite(truth):
         return None

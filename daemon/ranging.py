@@ -25,6 +25,10 @@ replaces the coarse one when it is nearer, or farther only within half a coarse 
 and at least as tight (``Ranger._refine``): never farther than the coarse pass saw on
 a fine match that does not hold up.
 
+With the thin guard (``ranging.thin_guard_m2``), matched pixels that pass the
+left-right check but not ``min_confidence`` (a thin twig is all depth edge) may make
+the reading nearer, or too close, never farther (``Ranger._thin_guard``).
+
 An object nearer than the minimum range (the near check sees it beyond the search,
 or the object piles at the search's end) is *too close*: no distance, never a
 farther one. :class:`OutlierGate` lets a nearer reading through
@@ -96,6 +100,19 @@ FINE_MAX_ROWS = 96
 #: ... or, for an object wider than FINE_MAX_COLS, up to twice as many columns with as many fewer rows (never
 #: under this many): the same area, so that a branch seen obliquely keeps its near end in the fine pass.
 FINE_MIN_ROWS = 16
+#: Thin guard's default area, m^2 (4 cm^2, twice a significant object's): measured against 2-16 cm^2 on the leafy
+#: near sweep (docs/ranging.md); smaller let needle clouds read as the obstacle, larger kept more twigs out.
+THIN_GUARD_M2 = 4e-4
+#: Thin guard (``ranging.thin_guard_m2`` > 0, ``Ranger._thin_guard``): an object of matched pixels that pass the
+#: left-right check, confident or not, replaces the reading when it is nearer by more than this share...
+THIN_GUARD_NEARER_REL = 0.02
+#: ... and is reported too close when it reads nearer than this many times the minimum range: a twig inside the
+#: minimum range is matched, falsely, just beyond it, and its false matches pass the check too (measured on the
+#: leafy near sweep, docs/ranging.md: 16 of 179 such frames sent as distances at 1.0, none at 1.4).
+THIN_GUARD_TOO_CLOSE_FACTOR = 1.4
+#: ... and only when under this share of its pixels are confident: an object mostly confident is one the confident
+#: reading saw already, and its unconfident edge pixels read a plain branch 5-7 % nearer (a 0.8 m branch at 640x360).
+THIN_GUARD_MAX_CONFIDENT_SHARE = 0.5
 #: A slanted object's surface is also read in a square window this many matched px a side around its
 #: front pixels, where it is nearest (``Ranger._slanted_surface``; 0 turns the rule off).
 FRONT_WINDOW_MATCHED_PX = 20
@@ -117,6 +134,7 @@ class RangingConfig:
     max_jump_rel: float = 0.2
     confirm_frames: int = 2
     max_sigma_m: float = WIRE_SIGMA_MAX_M
+    thin_guard_m2: float = THIN_GUARD_M2
 
     KEYS = (
         Key("roi", "roi", None, "region of interest in the rectified left image, px; null: the central third",
@@ -145,6 +163,10 @@ class RangingConfig:
         Key("max_sigma_m", "float", WIRE_SIGMA_MAX_M, "a reading less precise (1 sigma, m) is no measurement and "
             f"DISTANCE_SENSOR's range ends where the sigma floor reaches it; default {WIRE_SIGMA_MAX_M:.4f}, the most "
             "its covariance can carry (larger: such readings go out with covariance 255, unknown)", 0.001, 100.0),
+        Key("thin_guard_m2", "float", THIN_GUARD_M2, "thin guard: matched pixels that pass the left-right check but "
+            "not min_confidence (a thin twig is all depth edge) make the reading nearer, or too close, when they form "
+            "an object of at least this visible area, m^2 (0: off; docs/ranging.md: far fewer readings farther than "
+            "a twig, more read nearer, at needles)", 0.0, 1.0),
     )
 
 
@@ -160,7 +182,8 @@ class Measurement:
     ``n_px``: its pixel count; ``valid_fraction``: measured confident pixels / ROI area;
     ``too_close``: an object is nearer than the minimum range (``distance_m`` is then
     None: no distance was measured, but the obstacle is nearer than ``min_distance_m``);
-    ``refined``: the distance, sigma, box and disparity come from the fine pass.
+    ``refined``: the distance, sigma, box and disparity come from the fine pass; ``guarded``: from the
+    thin guard (``ranging.thin_guard_m2``), or it found the object too close.
     """
 
     distance_m: float | None
@@ -174,6 +197,7 @@ class Measurement:
     reason: str | None = None
     too_close: bool = False
     refined: bool = False
+    guarded: bool = False
 
     @property
     def valid(self) -> bool:
@@ -262,6 +286,66 @@ class Ranger:
 
     def measure(self, result: DisparityResult) -> Measurement:
         """The nearest significant object's distance in the ROI of one disparity result."""
+        m = self._measure(result)
+        if self.config.thin_guard_m2 > 0 and not m.too_close and result.lr_consistent is not None:
+            return self._thin_guard(m, result)
+        return m
+
+    def _thin_guard(self, m: Measurement, result: DisparityResult) -> Measurement:
+        """``m``, or a nearer reading from the matched pixels that pass the left-right check, confident or not.
+
+        The confidence gives a thin twig (a few matched pixels wide, all depth edge) almost no weight, so the
+        nearest confident object can be the branch or trunk behind it: read farther than the twig (the leafy
+        near sweep, docs/ranging.md). Here the same rules 1-3 find the nearest object among every measured
+        pixel that passes the left-right check, each weighing 1; if it covers at least ``thin_guard_m2`` of
+        visible area and reads nearer than ``m`` by more than :data:`THIN_GUARD_NEARER_REL` and by more than one
+        matched pixel of disparity (the coarse pass's resolution: within it, a coarse reading is no evidence
+        against a fine one; without this rule the flight file's plain frames at 1.5-3 m read 5-23 % nearer),
+        it replaces ``m``:
+        coarse, without the fine pass (whose confidence would drop the twig again) or the quality floor (it
+        is the nearer reading). Nearer than :data:`THIN_GUARD_TOO_CLOSE_FACTOR` times the minimum range, or
+        piled at the search's end, it is too close, also when ``m`` has no distance; otherwise a frame without
+        a distance stays without one (the guard never turns "no measurement" into a distance: on the leafy
+        suite that let a +9 % reading out). Never farther than ``m``.
+        """
+        cfg = self.config
+        x0, y0, x1, y1 = self.roi
+        disp = result.measured[y0:y1, x0:x1]
+        with np.errstate(invalid="ignore"):
+            ok = (disp >= self.d_floor) & result.lr_consistent[y0:y1, x0:x1]
+        g = self._object(disp, None, ok, self.px)
+        if g is None:
+            return m
+        z = self.fb / g.d
+        area_m2 = g.n * (z / self.calibration.focal_px) ** 2
+        if result.confidence is not None:
+            with np.errstate(invalid="ignore"):
+                member = ok & (disp >= g.lower) & (disp <= g.front + CLUSTER_MARGIN_PX * self.px)
+            conf = result.confidence[y0:y1, x0:x1]
+            if float((conf[member] >= cfg.min_confidence).mean()) >= THIN_GUARD_MAX_CONFIDENT_SHARE:
+                return m       # the confident pixels saw this object: only the weighting differs
+
+        if area_m2 < cfg.thin_guard_m2 or (m.valid and (z >= m.distance_m * (1.0 - THIN_GUARD_NEARER_REL)
+                                                         or g.d <= m.disparity_px + CLUSTER_MARGIN_PX * self.px)):
+            return m
+        lim = self.limits.min_distance_m
+        if g.front >= self.d_max - CLUSTER_MARGIN_PX * self.px or z < THIN_GUARD_TOO_CLOSE_FACTOR * lim:
+            return Measurement(None, n_px=m.n_px, valid_fraction=m.valid_fraction, too_close=True, guarded=True,
+                               reason=f"thin guard: {area_m2 * 1e4:.1f} cm^2 of left-right-consistent matches read "
+                                      f"{z:.3f} m, within {THIN_GUARD_TOO_CLOSE_FACTOR:g} x the minimum range "
+                                      f"{lim:.3f} m or at the search's end: too close")
+        if not m.valid:      # the guard makes a reading nearer or too close; it never turns "none" into a distance
+            return m
+        quality = int(min(100, max(2, round(100.0 * float(ok.mean())))))
+        g_m = replace(self._reading(g, _shift(g.bbox, x0, y0), quality, m.valid_fraction), guarded=True)
+        if g_m.sigma_m > cfg.max_sigma_m:      # nearer than m, but not precise: neither is sent
+            return replace(g_m, distance_m=None, sigma_m=None,
+                           reason=f"thin guard: a nearer object reads {z:.3f} m with sigma {g_m.sigma_m:.3f} m above "
+                                  f"max_sigma_m {cfg.max_sigma_m:.3f} m")
+        return g_m
+
+    def _measure(self, result: DisparityResult) -> Measurement:
+        """:meth:`measure` on the confident pixels alone (rules 1-3, fine pass, too close, floors)."""
         cfg = self.config
         x0, y0, x1, y1 = self.roi
         disp = result.measured[y0:y1, x0:x1]

@@ -35,7 +35,7 @@ import warnings
 import cv2
 import numpy as np
 
-from uav_depth.core.disparity.confidence import lr_confidence
+from uav_depth.core.disparity.confidence import confidence_maps
 from uav_depth.core.disparity.fine import FineMatch, FineMatcher
 from uav_depth.core.disparity.near import NearCheck, max_disparity_px, near_params, textured
 from uav_depth.core.disparity.match import Matchers, build_matchers, match_left, match_right, to_float
@@ -89,7 +89,7 @@ class DisparityPipeline:
         laps.lap("near")
         return DisparityResult(res.disparity, res.measured, res.confidence, res.warning,
                                {**res.timings_ms, **laps.ms}, near=check, near_confidence=near.confidence,
-                               fine=fine)
+                               fine=fine, lr_consistent=res.lr_consistent)
 
     def _run(self, left: np.ndarray, right: np.ndarray) -> tuple[DisparityResult, Window | None, Prepared | None]:
         """One pass of the stages; also the window and prepared images (None when nothing was matched)."""
@@ -117,17 +117,20 @@ class DisparityPipeline:
             return DisparityResult(measured, measured, None, timings_ms=laps.ms), win, prep
         right16 = match_right(self.matchers, prep.left_m, prep.right_m)
         laps.lap("match_right")
-        conf_full[win.outer()] = np.clip(self._confidence(win, left16, right16) * np.float32(1.0 / 255.0), 0.0, 1.0)
+        conf, lr = self._confidence(win, left16, right16)
+        conf_full[win.outer()] = np.clip(conf * np.float32(1.0 / 255.0), 0.0, 1.0)
+        lr_full = np.zeros((h, w), bool)
+        lr_full[win.outer()] = lr > 0
         laps.lap("confidence")
         if not self.refine:
             laps.lap("assemble")
-            return DisparityResult(measured, measured, conf_full, timings_ms=laps.ms), win, prep
+            return DisparityResult(measured, measured, conf_full, timings_ms=laps.ms, lr_consistent=lr_full), win, prep
         filt = self._refine(win, prep, left16, right16)
         laps.lap("wls")
         disparity = np.full((h, w), np.nan, np.float32)
         disparity[win.outer()] = filt[win.inner()]
         laps.lap("assemble")
-        return DisparityResult(disparity, measured, conf_full, timings_ms=laps.ms), win, prep
+        return DisparityResult(disparity, measured, conf_full, timings_ms=laps.ms, lr_consistent=lr_full), win, prep
 
     def _match_left(self, win: Window, prep: Prepared) -> np.ndarray:
         """The left matcher over the columns it needs (:attr:`Window.left_width`), at the crop's matched
@@ -156,21 +159,26 @@ class DisparityPipeline:
     def _wls_at_matched(self, win: Window) -> bool:
         return self.params.compute.wls_at == "matched" or not win.resized
 
-    def _confidence(self, win: Window, left16: np.ndarray, right16: np.ndarray) -> np.ndarray:
-        """0..255 confidence under the region, as WLS computes it for the guide it would be given."""
+    def _confidence(self, win: Window, left16: np.ndarray, right16: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """0..255 confidence under the region, as WLS computes it for the guide it would be given, and the
+        left-right check alone (uint8 0/1, :func:`.confidence.confidence_maps`)."""
         # WLS given the full-resolution guide scales its threshold and roll-off by the width ratio.
         rf = 1.0 if self._wls_at_matched(win) else float(np.float32(win.matched[0]) / np.float32(win.crop_size[0]))
         sg = self.params.sgbm
         if not win.resized:
             ys, xs = win.inner()
-            return lr_confidence(left16, right16, sg, rf, cols=(xs.start, xs.stop))[ys, xs]
+            conf, lr = confidence_maps(left16, right16, sg, rf, cols=(xs.start, xs.stop))
+            return conf[ys, xs], lr[ys, xs]
         if win.factor is None:
-            conf = lr_confidence(left16, right16, sg, rf)
-            return cv2.resize(conf, win.crop_size, interpolation=cv2.INTER_LINEAR)[win.inner()]
+            conf, lr = confidence_maps(left16, right16, sg, rf)
+            return (cv2.resize(conf, win.crop_size, interpolation=cv2.INTER_LINEAR)[win.inner()],
+                    cv2.resize(lr, win.crop_size, interpolation=cv2.INTER_NEAREST)[win.inner()])
         # Linear: one matched pixel more each side, so that the sub-block's border is never interpolated.
+        # The check alone: nearest, as the measured values it belongs to.
         x0, _, x1, _ = win.inner_matched(margin=1)
-        return _upsample(win, lambda l16, r16: lr_confidence(l16, r16, sg, rf, cols=(x0, x1)), left16, right16,
-                         interpolation=cv2.INTER_LINEAR, margin=1)
+        conf, lr = confidence_maps(left16, right16, sg, rf, cols=(x0, x1))
+        return (_upsample(win, lambda: conf, interpolation=cv2.INTER_LINEAR, margin=1),
+                _upsample(win, lambda: lr, interpolation=cv2.INTER_NEAREST, margin=1))
 
     def _refine(self, win: Window, prep: Prepared, left16: np.ndarray, right16: np.ndarray) -> np.ndarray:
         """WLS-smoothed disparity over the crop, input px, NaN where invalid."""

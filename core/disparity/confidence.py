@@ -59,10 +59,20 @@ def lr_confidence(left16: np.ndarray, right16: np.ndarray, sgbm: SGBMParams, res
 
     ``cols``: (c0, c1), compute only left columns c0..c1-1 (the rest is 0); each value is the
     one the whole map would hold (the filters see the same neighbours)."""
+    return confidence_maps(left16, right16, sgbm, resize_factor, cols)[0]
+
+
+def confidence_maps(left16: np.ndarray, right16: np.ndarray, sgbm: SGBMParams, resize_factor: float = 1.0,
+                    cols: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`lr_confidence`, and the left-right check alone: a (h, w) uint8 map, 1 where the left
+    pixel is matched and its right partner agrees (or lies outside the right view's answered
+    columns, unchecked as in the confidence), whatever its depth-edge weight. A thin twig is all
+    depth edge: its confidence is near 0 though its matches agree (ranging's thin guard uses this)."""
     h, w = left16.shape
     lo = max(0, sgbm.min_disparity + sgbm.num_disparities)
     ro = max(0, -sgbm.min_disparity)
     conf = np.zeros((h, w), np.float32)
+    lr_ok = np.zeros((h, w), np.uint8)
     rf = np.float32(resize_factor)
     roll = np.float32(ROLL_OFF) / (rf * rf)
     k = 2 * math.ceil(0.5 * sgbm.block_size) + 1
@@ -71,7 +81,7 @@ def lr_confidence(left16: np.ndarray, right16: np.ndarray, sgbm: SGBMParams, res
     re = w - lo
     c0, c1 = (lo, w - ro) if cols is None else (max(lo, cols[0]), min(w - ro, cols[1]))
     if c1 <= c0 or re <= ro:
-        return conf
+        return conf, lr_ok
 
     def weight(disp16: np.ndarray, invalid16: int, valid: np.ndarray) -> np.ndarray:
         # Filtered as float32 (exact for x16 disparities): OpenCV's sqrBoxFilter of int16 input, as
@@ -120,4 +130,5 @@ def lr_confidence(left16: np.ndarray, right16: np.ndarray, sgbm: SGBMParams, res
     agree = np.abs(dl + dr) < int(rf * LRC_THRESH_X16)
     both = np.minimum(own, right_w[rows, safe - ra])
     conf[:, c0:c1] = np.where(checked, np.where(agree, both, np.float32(0.0)), own)
-    return conf * np.float32(255.0)
+    lr_ok[:, c0:c1] = (dl >= sgbm.min_disparity * 16) & (agree | ~checked)
+    return conf * np.float32(255.0), lr_ok

@@ -29,6 +29,9 @@ class DisparityResult:
     flight pipeline has a fine pass (``compute.fine_disparities``), ``fine(box, d0)`` re-matches
     ``box`` (x0, y0, x1, y1 input px) of this frame at full resolution over disparities from ``d0``
     (:class:`.fine.FineMatch`, or None when the box cannot be matched); else None.
+    ``lr_consistent``: (H, W) bool, the measured pixels whose match passes the left-right check
+    (or cannot be checked) whatever their depth-edge weight (:func:`.confidence.confidence_maps`),
+    or None without the right matcher.
     """
 
     disparity: np.ndarray
@@ -39,6 +42,7 @@ class DisparityResult:
     near: Any = None
     near_confidence: np.ndarray | None = None
     fine: Callable[[tuple[int, int, int, int], int], Any] | None = None
+    lr_consistent: np.ndarray | None = None
 
 
 class Laps:

@@ -58,7 +58,9 @@ def test_a_toed_in_right_camera_is_rectified_and_ranged():
     rect = Rectifier(calib)
     rl, rr = rect(left, right)
     params = DEFAULT_PARAMS.replace(**{"sgbm.num_disparities": 64})
-    m = Ranger(RangingConfig(), rect.calibration, default_roi(W, H), params).measure(
+    # The confident reading checks the rectification; the thin guard (docs/ranging.md) reads this branch's
+    # edge 4.5 % nearer, which says nothing about the rows lining up.
+    m = Ranger(RangingConfig(thin_guard_m2=0.0), rect.calibration, default_roi(W, H), params).measure(
         DisparityPipeline(params).run(rl, rr))
     assert m.valid, m.reason
     assert m.distance_m == pytest.approx(0.8, rel=0.04)

@@ -208,9 +208,12 @@ def test_without_the_near_pass_the_same_frame_is_not_reported_as_a_distance_eith
     the quality floor drops it (it scored 9 on this frame)."""
     flight = load_params(FLIGHT_FILE)
     cfg, frame = _flight_frame(0.20, 0)
-    m = Ranger(RangingConfig(), cfg.calibration, cfg.center_roi, flight).measure(
-        DisparityPipeline(flight, refine=False).run(frame.left, frame.right))
+    result = DisparityPipeline(flight, refine=False).run(frame.left, frame.right)
+    m = Ranger(RangingConfig(thin_guard_m2=0.0), cfg.calibration, cfg.center_roi, flight).measure(result)
     assert not m.valid and not m.too_close and "min_quality" in m.reason
+    # With the thin guard (the default) the branch's consistent matches read within 1.4 x the minimum range.
+    m = Ranger(RangingConfig(), cfg.calibration, cfg.center_roi, flight).measure(result)
+    assert not m.valid and m.too_close and m.guarded
 
 
 def test_the_flight_pipeline_still_ranges_a_branch_just_outside_the_minimum_range():
@@ -689,3 +692,84 @@ def test_a_level_branch_with_farther_stuff_in_its_band_is_read_at_the_branch():
     d[190:230, 213:300] = fb / (fb / 22.0 + 0.015) + rng.normal(0, 0.3, (40, 87)).astype(np.float32)
     m = ranger().measure(_result(d))
     assert m.valid and fb / 22.0 * 0.98 <= m.distance_m <= fb / 22.0 * 1.005
+
+
+def _twig_in_front(twig_d: float = 22.05):
+    """A wall at 2 m (confident), a 10 x 80 px twig in front at disparity ``twig_d`` whose matches pass the
+    left-right check but carry no confidence (all depth edge)."""
+    d = np.full((360, 640), 11.025, np.float32)
+    conf = np.ones_like(d)
+    lr = np.ones(d.shape, bool)
+    d[160:170, 250:330] = twig_d
+    conf[160:170, 250:330] = 0.1
+    return DisparityResult(d, d, conf, lr_consistent=lr), lr
+
+
+def test_thin_guard_reads_an_unconfident_but_consistent_twig_in_front():
+    res, _ = _twig_in_front()                  # 800 px at 1 m, f 350 px: 65 cm^2
+    assert ranger(RangingConfig(thin_guard_m2=0.0)).measure(res).distance_m == pytest.approx(2.0, rel=1e-3)  # off
+    m = ranger().measure(res)                                                                             # default
+    assert m.valid and m.guarded and m.distance_m == pytest.approx(1.0, rel=1e-3)
+
+
+def test_thin_guard_ignores_matches_that_fail_the_left_right_check_and_small_objects():
+    res, lr = _twig_in_front()
+    lr[160:170, 250:330] = False
+    assert ranger(RangingConfig(thin_guard_m2=4e-4)).measure(res).distance_m == pytest.approx(2.0, rel=1e-3)
+    res, _ = _twig_in_front()
+    m = ranger(RangingConfig(thin_guard_m2=70e-4)).measure(res)      # 65 cm^2 < 70 cm^2
+    assert m.distance_m == pytest.approx(2.0, rel=1e-3) and not m.guarded
+
+
+def test_thin_guard_near_the_minimum_range_is_too_close_never_a_distance():
+    r = ranger(RangingConfig(thin_guard_m2=4e-4))
+    lim = r.limits.min_distance_m
+    res, _ = _twig_in_front(twig_d=r.fb / (1.2 * lim))    # a reading at 1.2 x the minimum range
+    m = r.measure(res)
+    assert m.too_close and m.guarded and m.distance_m is None
+
+
+def test_confidence_maps_keep_the_left_right_check_where_the_edge_weight_drops():
+    from uav_depth.core.disparity.confidence import confidence_maps
+    sg = PARAMS.sgbm
+    h, w = 40, 300
+    left16 = np.full((h, w), 10 * 16, np.int16)
+    left16[:, 150:152] = 30 * 16                  # a 2 px twig: all depth edge
+    right16 = np.full((h, w), -10 * 16, np.int16)
+    right16[:, 120:122] = -30 * 16                # its right partner agrees
+    left16[:, 200] = 40 * 16                      # a false match: its partner says -10
+    conf, lr = confidence_maps(left16, right16, sg)
+    assert conf[20, 150] < 0.5 * 255 and lr[20, 150] == 1        # unconfident, consistent
+    assert conf[20, 100] > 0.5 * 255 and lr[20, 100] == 1
+    assert lr[20, 200] == 0 and conf[20, 200] == 0
+
+
+def test_the_flight_pipeline_returns_the_left_right_check():
+    cfg, frame = _flight_frame(1.0, 0)
+    res = DisparityPipeline(load_params(FLIGHT_FILE), refine=False, near=True, fine=True).run(frame.left, frame.right)
+    assert res.lr_consistent is not None and res.lr_consistent.shape == res.measured.shape
+    matched = np.isfinite(res.measured)
+    assert res.lr_consistent[matched].mean() > 0.5 and not res.lr_consistent[~matched].any()
+
+
+def test_thin_guard_leaves_an_object_the_confident_pixels_saw():
+    res, _ = _twig_in_front()
+    d, conf = res.measured.copy(), res.confidence.copy()
+    conf[160:170, 250:330] = 1.0                   # a confident branch at 1 m ...
+    d[156:160, 250:330] = 23.5                     # ... whose unconfident, consistent edge reads 6 % nearer
+    conf[156:160, 250:330] = 0.1
+    m = ranger().measure(DisparityResult(d, d, conf, lr_consistent=res.lr_consistent))
+    assert m.distance_m == pytest.approx(1.0, rel=1e-3) and not m.guarded     # 71 % of it confident
+    conf[160:170, 250:330] = 0.1
+    conf[160:163, 250:330] = 1.0                   # 240 of 1120 confident: the guard reads its near edge
+    m = ranger().measure(DisparityResult(d, d, conf, lr_consistent=res.lr_consistent))
+    assert m.guarded and m.distance_m < 0.95
+
+
+def test_thin_guard_never_turns_no_measurement_into_a_distance():
+    res, _ = _twig_in_front()
+    conf = res.confidence.copy()
+    conf[:] = 0.1                                  # nothing confident: no measurement without the guard
+    res = DisparityResult(res.measured, res.measured, conf, lr_consistent=res.lr_consistent)
+    r = ranger(RangingConfig(thin_guard_m2=4e-4))
+    assert not r.measure(res).valid and not r.measure(res).too_close
