@@ -25,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from scenebench import PARAM_SET_NAMES, Measurer, ranging_config, fmt_pct, param_sets, rel_err, render_cached
+from scenebench import (PARAM_SET_NAMES, Measurer, add_ranging_args, fmt_pct, param_sets, ranging_config, rel_err,
+                        render_cached)
 
 from uav_depth.cli.benchmark import machine_line
 from uav_depth.daemon.ranging import RangingConfig
@@ -100,8 +101,7 @@ def main(argv=None) -> None:
     ap.add_argument("--no-cache", action="store_true")
     ap.add_argument("--json", action="store_true", help="print rows and summary as JSON instead of the table")
     ap.add_argument("--per-scene", action="store_true", help="also print one line per scene")
-    ap.add_argument("--thin-guard-cm2", type=float, default=None,
-                    help="ranging.thin_guard_m2 in cm^2 (0: off; default: the config's, 4)")
+    add_ranging_args(ap)
     args = ap.parse_args(argv)
     rows = suite(args.scenes, args.params, cache=not args.no_cache,
                  ranging=ranging_config(args.thin_guard_cm2))

@@ -36,8 +36,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from scenebench import (PARAM_SET_NAMES, Measurer, flight_max_range_m, fmt_pct, param_sets, ranging_config, rel_err,
-                        render_cached)
+from scenebench import (PARAM_SET_NAMES, Measurer, add_ranging_args, flight_max_range_m, fmt_pct, param_sets,
+                        ranging_config, rel_err, render_cached)
 
 from uav_depth.cli.benchmark import machine_line
 from uav_depth.daemon.ranging import RangingConfig
@@ -144,8 +144,7 @@ def main(argv=None) -> None:
     ap.add_argument("--params", nargs="+", default=["baseline", "flight"], choices=PARAM_SET_NAMES)
     ap.add_argument("--no-cache", action="store_true")
     ap.add_argument("--json", action="store_true", help="print rows and summary as JSON instead of the table")
-    ap.add_argument("--thin-guard-cm2", type=float, default=None,
-                    help="ranging.thin_guard_m2 in cm^2 (0: off; default: the config's, 4)")
+    add_ranging_args(ap)
     ap.add_argument("--per-distance", action="store_true", help="also print one line per distance")
     args = ap.parse_args(argv)
     max_m = args.max_m if args.max_m is not None else flight_max_range_m()

@@ -40,7 +40,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from scenebench import PARAM_SET_NAMES, ROOT, fmt_pct, param_sets, ranging_config
+from scenebench import PARAM_SET_NAMES, ROOT, add_ranging_args, fmt_pct, param_sets, ranging_config
 
 from uav_depth.cli.benchmark import machine_line
 from uav_depth.core.calibration import Calibration
@@ -142,8 +142,7 @@ def main(argv=None) -> None:
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA, help="folder of the 17 scene folders")
     ap.add_argument("--params", nargs="+", default=["baseline", "flight"], choices=PARAM_SET_NAMES)
     ap.add_argument("--json", action="store_true")
-    ap.add_argument("--thin-guard-cm2", type=float, default=None,
-                    help="ranging.thin_guard_m2 in cm^2 (0: off; default: the config's, 4)")
+    add_ranging_args(ap)
     args = ap.parse_args(argv)
     if not (args.data / SCENES[0] / "disp1.png").is_file():
         sys.exit(f"real_ranging: no Middlebury 2006 scenes at {args.data} (need <scene>/view1.png, view5.png, "

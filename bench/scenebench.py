@@ -118,6 +118,12 @@ class Measurer:
                 "quality": rep.signal_quality, "ms": ms, "reason": m.reason}
 
 
+def add_ranging_args(ap) -> None:
+    """The benchmarks' ranging option (read back with :func:`ranging_config`)."""
+    ap.add_argument("--thin-guard-cm2", type=float, default=None,
+                    help="ranging.thin_guard_m2 in cm^2 (0: off; default: the config's, 4)")
+
+
 def ranging_config(thin_guard_cm2: float | None = None) -> RangingConfig:
     """The ranging section the benchmarks measure with: the default, or with ``thin_guard_m2`` set (cm^2; 0: off)."""
     return RangingConfig() if thin_guard_cm2 is None else RangingConfig(thin_guard_m2=thin_guard_cm2 * 1e-4)

@@ -325,16 +325,15 @@ class Ranger:
             return m
         z = self.fb / g.d
         area_m2 = g.n * (z / self.calibration.focal_px) ** 2
+        if area_m2 < cfg.thin_guard_m2 or (m.valid and (z >= m.distance_m * (1.0 - THIN_GUARD_NEARER_REL)
+                                                         or g.d <= need)):
+            return m
         if result.confidence is not None:
             with np.errstate(invalid="ignore"):
                 member = ok & (disp >= g.lower) & (disp <= g.front + CLUSTER_MARGIN_PX * self.px)
             conf = result.confidence[y0:y1, x0:x1]
             if float((conf[member] >= cfg.min_confidence).mean()) >= THIN_GUARD_MAX_CONFIDENT_SHARE:
                 return m       # the confident pixels saw this object: only the weighting differs
-
-        if area_m2 < cfg.thin_guard_m2 or (m.valid and (z >= m.distance_m * (1.0 - THIN_GUARD_NEARER_REL)
-                                                         or g.d <= m.disparity_px + CLUSTER_MARGIN_PX * self.px)):
-            return m
         lim = self.limits.min_distance_m
         if g.front >= self.d_max - CLUSTER_MARGIN_PX * self.px or z < THIN_GUARD_TOO_CLOSE_FACTOR * lim:
             return Measurement(None, n_px=m.n_px, valid_fraction=m.valid_fraction, too_close=True, guarded=True,
