@@ -71,8 +71,10 @@ NEAR_BEYOND_SHARE = 0.15
 #: those are at least NEAR_UNCONFIRMED_RATIO of the near pass's matches beyond it (a twig in front; false near
 #: matches on a repeating background lie where the main pass matched confidently). Measured
 #: (docs/ranging.md): twigs 0.13-0.28 m away 3.4-14 % at ratios 0.83-0.99, frames with nothing inside the
-#: minimum range at most 0.9 % at a ratio above 0.75 (1.6 % at 0.36).
-NEAR_UNCONFIRMED_SHARE = 0.02
+#: minimum range at most 0.9 % at a ratio above 0.75 (1.6 % at 0.36); the manual baseline's 1.8 cm branch at
+#: 0.30 m (bright exposure) 1.9 % at 1.0, sent as a valid 0.53 m under the 2 % this was before 2026-12-04.
+#: 1.5 % of the region is 2.4 cm^2 at the flight file's minimum range, over a significant object's 2 cm^2.
+NEAR_UNCONFIRMED_SHARE = 0.015
 NEAR_UNCONFIRMED_RATIO = 0.75
 #: A frame that measures (almost) nothing right after a too-close one is still too close: the object
 #: that was nearer than the minimum range now fills the view, texture-less (docs/ranging.md).
