@@ -28,6 +28,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import time
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping, Sequence
 
@@ -107,13 +108,18 @@ class RunStore:
         if not memory and "://" not in self.path:
             Path(self.path).parent.mkdir(parents=True, exist_ok=True)
             _refuse_old_format(Path(self.path))
-        try:
-            self.storage = optuna.storages.InMemoryStorage() if memory else optuna.storages.RDBStorage(
-                self.url, engine_kwargs=_engine_kwargs(self.url))
-            self.study = optuna.create_study(storage=self.storage, study_name=study_name, direction=direction,
-                                             load_if_exists=True)
-        except Exception as exc:  # SQLAlchemy / Optuna raise many kinds for a file that is not a store
-            raise FileFormatError(f"{self.path}: not a usable run store ({type(exc).__name__}: {exc})") from exc
+        for attempt in range(OPEN_RETRIES + 1):
+            try:
+                self.storage = optuna.storages.InMemoryStorage() if memory else optuna.storages.RDBStorage(
+                    self.url, engine_kwargs=_engine_kwargs(self.url))
+                self.study = optuna.create_study(storage=self.storage, study_name=study_name, direction=direction,
+                                                 load_if_exists=True)
+                break
+            except Exception as exc:  # SQLAlchemy / Optuna raise many kinds for a file that is not a store
+                if attempt < OPEN_RETRIES and _opened_elsewhere(exc):
+                    time.sleep(OPEN_RETRY_S)
+                    continue
+                raise FileFormatError(f"{self.path}: not a usable run store ({type(exc).__name__}: {exc})") from exc
         self._dists = {k: d for k in keys if (d := _distribution(k)) is not None}
         self._rows: dict[str, tuple[dict[str, Any], Evaluation]] = {}
         self._order: list[str] = []
@@ -201,6 +207,22 @@ def _fits(dist, value: Any) -> bool:
         return bool(dist._contains(dist.to_internal_repr(value)))
     except (ValueError, TypeError):
         return False
+
+
+#: Another process opening the same new store at the same moment (optuna-dashboard, ``optuna studies``, a
+#: script reading it through Optuna) creates Optuna's schema too: SQLite then refuses one side's CREATE TABLE
+#: ("table studies already exists"), or its schema-version row ("UNIQUE constraint failed:
+#: alembic_version.version_num"), or holds the file locked for a moment. The tuner exited 1 on it, 2 runs in 8
+#: with a reader polling the store as it started (2026-12-04). Opening again finds the schema made.
+OPEN_RETRIES = 10
+OPEN_RETRY_S = 0.1
+
+
+def _opened_elsewhere(exc: BaseException) -> bool:
+    """True for the errors of a store whose schema another process is creating at this moment."""
+    kind, text = type(exc).__name__, str(exc)
+    return ((kind == "OperationalError" and ("already exists" in text or "database is locked" in text))
+            or (kind == "IntegrityError" and "alembic_version" in text))
 
 
 def _refuse_old_format(path: Path) -> None:

@@ -60,7 +60,9 @@ def _start_and_wait(args, store, at_least):
     deadline = time.monotonic() + 120
     while _count(store) < at_least and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.05)
-    assert proc.poll() is None, "the run ended before it could be interrupted"
+    if proc.poll() is not None:
+        out, err = proc.communicate()
+        raise AssertionError(f"the run ended (exit {proc.returncode}) before it could be interrupted: {err[-3000:]}")
     return proc
 
 
