@@ -19,7 +19,8 @@ disparity (docs/ranging.md says why each rule and threshold is what it is):
    its whole band.
 
 Z = f*B/d and sigma_Z = Z^2/(f*B) * sigma_d. A reading below ``min_quality`` is no
-measurement. With a fine pass (``compute.fine_disparities``) the object's box is
+measurement, or too close when it reads within :data:`WEAK_TOO_CLOSE_FACTOR` x the
+minimum range (a twig inside it matched weakly just beyond). With a fine pass (``compute.fine_disparities``) the object's box is
 re-matched at full resolution and ranged again by the same rules; the fine reading
 replaces the coarse one when it is nearer, or farther only within half a coarse pixel
 and at least as tight (``Ranger._refine``): never farther than the coarse pass saw on
@@ -108,13 +109,18 @@ THIN_GUARD_M2 = 4e-4
 #: Thin guard (``ranging.thin_guard_m2`` > 0, ``Ranger._thin_guard``): an object of matched pixels that pass the
 #: left-right check, confident or not, replaces the reading when it is nearer by more than this share...
 THIN_GUARD_NEARER_REL = 0.02
-#: ... and is reported too close when it reads nearer than this many times the minimum range: a twig inside the
-#: minimum range is matched, falsely, just beyond it, and its false matches pass the check too (measured on the
-#: leafy near sweep, docs/ranging.md: 16 of 179 such frames sent as distances at 1.0, none at 1.4).
-THIN_GUARD_TOO_CLOSE_FACTOR = 1.4
+#: ... and is reported too close when it reads nearer than WEAK_TOO_CLOSE_FACTOR times the minimum range (below).
 #: ... and only when under this share of its pixels are confident: an object mostly confident is one the confident
 #: reading saw already, and its unconfident edge pixels read a plain branch 5-7 % nearer (a 0.8 m branch at 640x360).
 THIN_GUARD_MAX_CONFIDENT_SHARE = 0.5
+#: A weak reading this near the minimum range is too close (docs/ranging.md, *Too close*, rules 6 and 7): the
+#: thin guard's unconfident object, or a frame below the quality floor, reading nearer than this many times the
+#: minimum range. A twig inside the minimum range is matched, falsely and with little confidence, just beyond it,
+#: and its false matches pass the left-right check too. Measured on the near sweep (docs/ranging.md): the guard at
+#: 1.0 sent 16 of the flight file's 179 leafy frames inside the minimum range as distances, at 1.4 none; below the
+#: floor, the frames inside the minimum range still "no measurement" read 1.01-1.10 x (seeds 0-4) and 1.11-1.14 x
+#: (seeds 5-9), and in-range frames it turns too close had their truth within 1.35 x.
+WEAK_TOO_CLOSE_FACTOR = 1.4
 #: A slanted object's surface is also read in a square window this many matched px a side around its
 #: front pixels, where it is nearest (``Ranger._slanted_surface``; 0 turns the rule off).
 FRONT_WINDOW_MATCHED_PX = 20
@@ -146,8 +152,9 @@ class RangingConfig:
         Key("min_object_m2", "float", SIGNIFICANT_AREA_M2,
             "smallest visible area, m^2 at its measured depth, that the nearest object needs to count "
             "(2 cm^2: a twig the saw or a propeller would hit)", 0.0, 1.0),
-        Key("min_quality", "int", 31, "readings of lower signal quality (2..100) are no measurement "
-            "(docs/ranging.md: wrong readings scored 2-30, correct ones 39-85)", 0, 100),
+        Key("min_quality", "int", 31, "readings of lower signal quality (2..100) are no measurement, or too close "
+            "when they read within 1.4 x the minimum range (docs/ranging.md: wrong readings scored 2-30, correct "
+            "ones 39-85)", 0, 100),
         Key("min_confidence", "float", 0.5, "WLS confidence (0..1) a measured pixel needs to be used", 0.0, 1.0),
         Key("max_age_ms", "float", 300.0,
             "an estimate older than this (from frame capture) is never sent as valid; "
@@ -305,7 +312,7 @@ class Ranger:
         against a fine one; without this rule the flight file's plain frames at 1.5-3 m read 5-23 % nearer),
         it replaces ``m``:
         coarse, without the fine pass (whose confidence would drop the twig again) or the quality floor (it
-        is the nearer reading). Nearer than :data:`THIN_GUARD_TOO_CLOSE_FACTOR` times the minimum range, or
+        is the nearer reading). Nearer than :data:`WEAK_TOO_CLOSE_FACTOR` times the minimum range, or
         piled at the search's end, it is too close, also when ``m`` has no distance; otherwise a frame without
         a distance stays without one (the guard never turns "no measurement" into a distance: on the leafy
         suite that let a +9 % reading out). Never farther than ``m``.
@@ -316,7 +323,7 @@ class Ranger:
         # The guard can only act through an object whose front is beyond ``need`` (nearer than m by more than one
         # matched px, or within the too-close factor when m has no distance): fewer consistent pixels there than an
         # object needs, and nothing can change (most frames; the search below costs about 1 ms).
-        lim_d = self.fb / (THIN_GUARD_TOO_CLOSE_FACTOR * self.limits.min_distance_m)
+        lim_d = self.fb / (WEAK_TOO_CLOSE_FACTOR * self.limits.min_distance_m)
         need = m.disparity_px + CLUSTER_MARGIN_PX * self.px if m.valid else min(lim_d, self.d_max - CLUSTER_MARGIN_PX * self.px)
         with np.errstate(invalid="ignore"):
             ok = (disp >= self.d_floor) & result.lr_consistent[y0:y1, x0:x1]
@@ -337,10 +344,10 @@ class Ranger:
             if float((conf[member] >= cfg.min_confidence).mean()) >= THIN_GUARD_MAX_CONFIDENT_SHARE:
                 return m       # the confident pixels saw this object: only the weighting differs
         lim = self.limits.min_distance_m
-        if g.front >= self.d_max - CLUSTER_MARGIN_PX * self.px or z < THIN_GUARD_TOO_CLOSE_FACTOR * lim:
+        if g.front >= self.d_max - CLUSTER_MARGIN_PX * self.px or z < WEAK_TOO_CLOSE_FACTOR * lim:
             return Measurement(None, n_px=m.n_px, valid_fraction=m.valid_fraction, too_close=True, guarded=True,
                                reason=f"thin guard: {area_m2 * 1e4:.1f} cm^2 of left-right-consistent matches read "
-                                      f"{z:.3f} m, within {THIN_GUARD_TOO_CLOSE_FACTOR:g} x the minimum range "
+                                      f"{z:.3f} m, within {WEAK_TOO_CLOSE_FACTOR:g} x the minimum range "
                                       f"{lim:.3f} m or at the search's end: too close")
         if not m.valid:      # the guard makes a reading nearer or too close; it never turns "none" into a distance
             return m
@@ -378,10 +385,17 @@ class Ranger:
         quality = int(min(100, max(2, round(100.0 * valid_fraction * obj.mean_conf))))
         bbox = _shift(obj.bbox, x0, y0)
         if quality < cfg.min_quality:
+            z, lim = self.fb / obj.d, self.limits.min_distance_m
+            if z < WEAK_TOO_CLOSE_FACTOR * lim:
+                return Measurement(None, quality=quality, bbox=bbox, disparity_px=obj.d, sigma_px=obj.sigma_d,
+                                   n_px=obj.n, valid_fraction=valid_fraction, too_close=True,
+                                   reason=f"signal quality {quality} below min_quality {cfg.min_quality} and the "
+                                          f"nearest object reads {z:.3f} m, within {WEAK_TOO_CLOSE_FACTOR:g} x "
+                                          f"the minimum range {lim:.3f} m: too close")
             return Measurement(None, quality=quality, bbox=bbox, disparity_px=obj.d, sigma_px=obj.sigma_d,
                                n_px=obj.n, valid_fraction=valid_fraction,
                                reason=f"signal quality {quality} below min_quality {cfg.min_quality} "
-                                      f"(the object would read {self.fb / obj.d:.3f} m)")
+                                      f"(the object would read {z:.3f} m)")
         m = self._reading(obj, bbox, quality, valid_fraction)
         if result.fine is not None:
             m = self._refine(m, obj, result, disp, ok)

@@ -403,6 +403,40 @@ def test_a_near_object_needs_its_metric_area():
     assert m.distance_m == pytest.approx(0.4, rel=1e-3)
 
 
+def test_a_weak_reading_at_the_minimum_range_is_too_close():
+    """Maps built by hand: below the quality floor, an object reading within 1.4 x the minimum range is too
+    close (a twig inside the minimum range is matched, falsely and weakly, just beyond it); reading farther,
+    the frame stays no measurement, and above the floor it is a distance."""
+    r = ranger()
+    lim = r.limits.min_distance_m
+    fb = 350.0 * 0.063
+    d = np.full((360, 640), np.nan, np.float32)
+    d[120:150, 213:426] = fb / (1.05 * lim)              # 25 % of the ROI measured: quality 25, under 31
+    m = r.measure(_result(d))
+    assert m.too_close and not m.valid and "within 1.4 x the minimum range" in m.reason, m
+    d[120:150, 213:426] = fb / (1.5 * lim)
+    m = r.measure(_result(d))
+    assert not m.too_close and not m.valid and "below min_quality" in m.reason, m
+    d[120:150, 213:426] = fb / (1.05 * lim)
+    m = ranger(RangingConfig(min_quality=20)).measure(_result(d))
+    assert m.valid and m.distance_m == pytest.approx(1.05 * lim, rel=1e-3)
+
+
+def test_a_weak_twig_inside_the_minimum_range_is_too_close():
+    """The flight file on the near sweep's leafy seed 0 with the target at 0.32 m: the nearest twig is at 0.21 m,
+    inside the minimum range (0.279 m); it was matched just beyond it, weakly (quality 17, 0.30 m), and the
+    frame went out as no measurement. Now too close."""
+    from uav_depth.core.disparity import flight_pipeline
+
+    flight = load_params(FLIGHT_FILE)
+    cfg = SceneConfig.leafy(seed=0, branch_distance_m=0.32)
+    frame = Scene(cfg).render(rng=np.random.default_rng([cfg.seed, 0]))   # as bench/scenebench.py renders
+    assert frame.truth(cfg.center_roi).significant_m < 0.279
+    m = Ranger(RangingConfig(), cfg.calibration, cfg.center_roi, flight).measure(
+        flight_pipeline(flight).run(frame.left, frame.right))
+    assert m.too_close and not m.valid, m
+
+
 def test_readings_below_the_quality_floor_are_no_measurement():
     fb = 350.0 * 0.063
     d = np.full((360, 640), np.nan, np.float32)
