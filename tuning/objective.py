@@ -32,7 +32,7 @@ from uav_depth.core.disparity import DisparityPipeline, DisparityResult, flight_
 from uav_depth.core.errors import ParameterWarning
 from uav_depth.core.calibration import Calibration
 from uav_depth.core.params import StereoParams, params_from_dict
-from uav_depth.daemon.ranging import Ranger, RangingConfig, resolve_roi
+from uav_depth.daemon.ranging import Measurement, Ranger, RangingConfig, resolve_roi
 
 from uav_depth.tuning import metrics
 from uav_depth.tuning.frames import FrameData, FrameSet
@@ -123,12 +123,17 @@ def _ref(fn: Callable[[np.ndarray, np.ndarray], float]) -> Callable[[FrameData, 
                                                          frame.reference, res.disparity))
 
 
-def branch_distance(frame: FrameData, res: DisparityResult, params: StereoParams) -> float | None:
-    """The daemon's own ranging stage on this result: the branch distance in m, None when it measured nothing."""
+def branch_reading(frame: FrameData, res: DisparityResult, params: StereoParams) -> Measurement:
+    """The daemon's own ranging stage on this result: its whole reading (the distance, or why there is none)."""
     h, w = frame.left.shape[:2]
     cal = Calibration(focal_px=frame.focal_px, baseline_m=frame.baseline_m, width=w, height=h)
     roi = resolve_roi(frame.roi, w, h)
-    return Ranger(RangingConfig(roi=roi), cal, roi, params).measure(res).distance_m
+    return Ranger(RangingConfig(roi=roi), cal, roi, params).measure(res)
+
+
+def branch_distance(frame: FrameData, res: DisparityResult, params: StereoParams) -> float | None:
+    """The daemon's own ranging stage on this result: the branch distance in m, None when it measured nothing."""
+    return branch_reading(frame, res, params).distance_m
 
 
 def branch_measurement(frame: FrameData, res: DisparityResult, params: StereoParams) -> tuple[float | None, float]:

@@ -52,6 +52,16 @@ def run(args: argparse.Namespace) -> int:
         truth = f"{f['truth_m']:9.3f}" if "truth_m" in f else f"{'-':>9}"
         print(f"{f['id']:<24}{truth}{meas}{f.get('branch', math.nan):9.2f}{f['bad2']:8.2f}{f['density']:8.3f}"
               f"{f['ms']:7.0f}")
+    # Why a frame went out with no distance (what the daemon would log): its reading, run again.
+    from uav_depth.core.disparity import flight_pipeline
+    from uav_depth.tuning.objective import branch_reading
+
+    pipeline = None
+    for frame, f in zip(frames.frames, ev.frame_metrics):
+        if "branch_m" in f and not math.isfinite(f["branch_m"]):
+            pipeline = pipeline or flight_pipeline(params)
+            m = branch_reading(frame, pipeline.run(frame.left, frame.right), params)
+            print(f"  {f['id']}: {'too close' if m.too_close else 'no measurement'}: {m.reason}")
     errs = [f["branch"] for f in ev.frame_metrics if "branch" in f]
     print(f"branch distance: median error {float(np.median(errs)) if errs else math.nan:.2f}% over "
           f"{len(ev.frame_metrics)} frames (a frame measured nothing counts 100%); {ev.ms:.0f} ms per frame; "

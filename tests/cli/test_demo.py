@@ -22,6 +22,10 @@ def test_demo_scores_the_flight_parameters_and_prints_branch_distances(tmp_path,
         if fields[2] != "none":
             # the error printed is the measured distance's against the truth (both rounded to 1 mm)
             assert abs(abs(float(fields[2]) - truth) / truth * 100 - float(fields[3])) < 0.2
+        else:
+            # ... and a frame without a distance says why, as the daemon would (seed 0's second frame: the floor)
+            assert re.search(rf"^  {fields[0]}: (no measurement|too close): \S", out, re.M), out
+    assert any(row.split()[2] == "none" for row in rows), "seed 0 has a frame below the quality floor: the case above"
     assert re.search(r"branch distance: median error [\d.]+% over 2 frames", out)
 
 
