@@ -20,8 +20,9 @@ disparity (docs/ranging.md says why each rule and threshold is what it is):
 
 Z = f*B/d and sigma_Z = Z^2/(f*B) * sigma_d. A reading below ``min_quality`` is no
 measurement, or too close when it reads within :data:`WEAK_TOO_CLOSE_FACTOR` x the
-minimum range (a twig inside it matched weakly just beyond). With a fine pass (``compute.fine_disparities``) the object's box is
-re-matched at full resolution and ranged again by the same rules; the fine reading
+minimum range (a twig inside it matched weakly just beyond). With a fine pass
+(``compute.fine_disparities``) the object's box is re-matched at full resolution and
+ranged again by the same rules; the fine reading
 replaces the coarse one when it is nearer, or farther only within half a coarse pixel
 and at least as tight (``Ranger._refine``): never farther than the coarse pass saw on
 a fine match that does not hold up.
@@ -386,16 +387,12 @@ class Ranger:
         bbox = _shift(obj.bbox, x0, y0)
         if quality < cfg.min_quality:
             z, lim = self.fb / obj.d, self.limits.min_distance_m
-            if z < WEAK_TOO_CLOSE_FACTOR * lim:
-                return Measurement(None, quality=quality, bbox=bbox, disparity_px=obj.d, sigma_px=obj.sigma_d,
-                                   n_px=obj.n, valid_fraction=valid_fraction, too_close=True,
-                                   reason=f"signal quality {quality} below min_quality {cfg.min_quality} and the "
-                                          f"nearest object reads {z:.3f} m, within {WEAK_TOO_CLOSE_FACTOR:g} x "
-                                          f"the minimum range {lim:.3f} m: too close")
+            weak_near = z < WEAK_TOO_CLOSE_FACTOR * lim      # rule 7: a weak reading at the minimum range
+            why = (f"and the nearest object reads {z:.3f} m, within {WEAK_TOO_CLOSE_FACTOR:g} x the minimum range "
+                   f"{lim:.3f} m: too close" if weak_near else f"(the object would read {z:.3f} m)")
             return Measurement(None, quality=quality, bbox=bbox, disparity_px=obj.d, sigma_px=obj.sigma_d,
-                               n_px=obj.n, valid_fraction=valid_fraction,
-                               reason=f"signal quality {quality} below min_quality {cfg.min_quality} "
-                                      f"(the object would read {z:.3f} m)")
+                               n_px=obj.n, valid_fraction=valid_fraction, too_close=weak_near,
+                               reason=f"signal quality {quality} below min_quality {cfg.min_quality} {why}")
         m = self._reading(obj, bbox, quality, valid_fraction)
         if result.fine is not None:
             m = self._refine(m, obj, result, disp, ok)
