@@ -16,9 +16,9 @@ def configure(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("logdir", help="a session or a directory of sessions (log layout)")
     p.add_argument("--metric", choices=list(FITNESS), default=None,
-                   help="fitness. flown (default): what the daemon ranges on, the confident measured pixels in "
-                        "the ranging region, mean absolute error in the benchmark convention, plus the branch "
-                        "distance error where the frames know it; flown-bad2: bad-2 instead; mse, psnr, ssim, "
+                   help="fitness. flown (default): what the daemon ranges on, the confident measured pixels over "
+                        "the matched region, mean absolute error in the benchmark convention, plus the branch "
+                        "distance error in the ranging region where the frames know it; flown-bad2: bad-2 instead; mse, psnr, ssim, "
                         "bad2: the paper's, on the WLS map (default with ga-paper); branch: the branch distance "
                         "alone (synthetic sessions); selfsup: needs no reference")
     p.add_argument("--optimizer", choices=list(OPTIMIZERS), default="tpe",

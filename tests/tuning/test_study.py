@@ -125,6 +125,31 @@ def test_flown_fitness_scores_what_ranging_consumes_and_ignores_wls_smoothing(ti
     assert evaluate(other, tiny_frames, FITNESS[metric]).per_frame != ev.per_frame
 
 
+def test_flown_fitness_scores_the_map_over_the_matched_region_and_the_branch_in_the_ranging_region(tiny_frames):
+    """The map over everything the candidate matches (a ninth of the frame chooses parameters that do not
+    generalise, issue 12), the branch where the daemon ranges: a frame's ranging ROI moves the branch term only."""
+    import dataclasses
+
+    from uav_depth.core.disparity import flight_pipeline
+    from uav_depth.daemon.ranging import resolve_roi
+    from uav_depth.tuning import metrics
+    from uav_depth.tuning.objective import BRANCH_PX_PER_PCT, bench, branch_reading, flown_map
+
+    pipeline = flight_pipeline(TINY_BASE)
+    for f in tiny_frames.frames:
+        res = pipeline.run(f.left, f.right)
+        h, w = f.left.shape[:2]
+        whole = bench(f, flown_map(res), (0, 0, w, h))["mae"]
+        assert abs(whole - bench(f, flown_map(res), resolve_roi(f.roi, w, h))["mae"]) > 0.01  # regions differ
+        for roi in (f.roi, (0, 0, w // 4, h // 4)):      # the branch's region, and a corner away from it
+            frame = dataclasses.replace(f, roi=roi)
+            reading = branch_reading(frame, res, TINY_BASE).distance_m
+            branch = BRANCH_PX_PER_PCT * metrics.safe_branch_error(reading, f.branch_distance_m)
+            value = evaluate(TINY_BASE, FrameSet("one", (frame,)), FITNESS["flown"]).value
+            assert value == pytest.approx(whole + branch, abs=1e-9)
+        assert reading is None or abs(reading - f.branch_distance_m) > 0.05   # the corner misses the branch
+
+
 def test_branch_fitness_is_the_daemons_ranging_error(tiny_frames):
     ev = evaluate(TINY_BASE, tiny_frames, FITNESS["branch"])
     # the baseline ranges tiny synthetic branches within a few %, or reports no measurement (the ranging's
