@@ -154,8 +154,8 @@ class RangingConfig:
             "smallest visible area, m^2 at its measured depth, that the nearest object needs to count "
             "(2 cm^2: a twig the saw or a propeller would hit)", 0.0, 1.0),
         Key("min_quality", "int", 31, "readings of lower signal quality (2..100) are no measurement, or too close "
-            "when they read within 1.4 x the minimum range (docs/ranging.md: wrong readings scored 2-30, correct "
-            "ones 39-85)", 0, 100),
+            f"when they read within {WEAK_TOO_CLOSE_FACTOR:g} x the minimum range (docs/ranging.md: wrong readings "
+            "scored 2-30, correct ones 39-85)", 0, 100),
         Key("min_confidence", "float", 0.5, "WLS confidence (0..1) a measured pixel needs to be used", 0.0, 1.0),
         Key("max_age_ms", "float", 300.0,
             "an estimate older than this (from frame capture) is never sent as valid; "
