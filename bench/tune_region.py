@@ -46,7 +46,7 @@ def main() -> int:
     from uav_depth.core.session import iter_frames
     from uav_depth.daemon.ranging import resolve_roi
     from uav_depth.tuning.frames import load_frame
-    from uav_depth.tuning.objective import BRANCH_PX_PER_PCT, FITNESS, _branch, bench, flown_map, scored_box
+    from uav_depth.tuning.objective import BRANCH_PX_PER_PCT, _branch, bench, flown_map, scored_box
     from uav_depth.tuning.space import FLOWN_KEYS, SchemaSpace, build
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -61,11 +61,12 @@ def main() -> int:
         h, w = f.left.shape[:2]
         return resolve_roi(f.roi, w, h)
 
-    def scores(params):
-        """Per frame: (ranging-region MAE, whole-frame MAE, whole-frame bad-2, branch term), or None (failed)."""
+    def scores(params, on=frames):
+        """Per frame of ``on``: (ranging-region MAE, whole-frame MAE, whole-frame bad-2, branch term), or None
+        when the candidate fails (a warning, or no measured pixel)."""
         pipeline = flight_pipeline(params)
         out = {}
-        for f in frames:
+        for f in on:
             res = pipeline.run(f.left, f.right)
             if res.warning is not None or not np.isfinite(res.measured).any():
                 return None
@@ -75,19 +76,14 @@ def main() -> int:
                           BRANCH_PX_PER_PCT * _branch(f, res, params) if f.has_branch else 0.0)
         return out
 
-    def fitness(region: str, params, on) -> float:
-        pipeline = flight_pipeline(params)
-        values = []
-        for f in on:
-            res = pipeline.run(f.left, f.right)
-            if res.warning is not None or not np.isfinite(res.measured).any():
-                return float("inf")
-            if region == "matched":
-                values.append(FITNESS["flown"].score(f, res, params))
-            else:
-                values.append(bench(f, flown_map(res), region_box(f))["mae"]
-                              + (BRANCH_PX_PER_PCT * _branch(f, res, params) if f.has_branch else 0.0))
-        return float(np.mean(values))
+    def fitness(region: str, params) -> float:
+        """The flown fitness on the training scenes, the map scored in ``region``: "matched" is
+        ``FITNESS["flown"]`` as it is now (whole-frame MAE + branch term; tests/tuning/test_study.py checks that
+        sum), "ranging" the fitness before issue 12's change."""
+        got = scores(params, train)
+        if got is None:
+            return float("inf")
+        return float(np.mean([v[0 if region == "ranging" else 1] + v[3] for v in got.values()]))
 
     print(machine_line())
     print(f"train: {', '.join(sorted(tune_real.TRAIN))}; held out: {', '.join(sorted(scene(f) for f in test))}; "
@@ -114,7 +110,7 @@ def main() -> int:
                 trial = study.ask(dist)
                 try:
                     params = build(space, [trial.params[k] for k in names], DEFAULT_PARAMS)
-                    value = fitness(region, params, train)
+                    value = fitness(region, params)
                 except Exception:  # noqa: BLE001  (a candidate the schema refuses is a failed trial)
                     value = float("inf")
                 study.tell(trial, value if np.isfinite(value) else 1e9)
