@@ -13,7 +13,7 @@ folds of each fold's winner on its own held-out sessions against the base there
 
 **Fragility.** Before a candidate may win, :func:`nudge_check` scores it on the
 training frames with each key nudged one step either way (P1, P2 and the speckle
-window x0.9 / x1.1, block size +-2, uniqueness +-1, speckle range and
+window x0.9 / x1.1, block size +-2 with P1/P2 kept per block pixel, uniqueness +-1, speckle range and
 disp12MaxDiff +-1): when one nudge loses the whole gain the candidate had over the
 base (or fails), the candidate sits on a cliff and the next one is tried.
 
@@ -45,6 +45,11 @@ NUDGE_FACTOR = 0.1
 NUDGE_STEPS: Mapping[str, int] = {"sgbm.block_size": 2, "sgbm.uniqueness_ratio": 1, "sgbm.speckle_range": 1,
                                   "sgbm.disp12_max_diff": 1}
 NUDGE_SCALED: tuple[str, ...] = ("sgbm.p1", "sgbm.p2", "sgbm.speckle_window_size")
+#: The block size's nudge keeps P1 and P2 per block pixel: SGBM adds them to matching costs summed over the
+#: block, so they scale with its area (OpenCV's sample: P1 = 8 x channels x block_size^2, P2 = 32 x ...). With
+#: the same P1/P2, block 1 -> 3 cuts the smoothing ninefold: not one step but a different matcher (issue 12: at
+#: the default 30 x 100 budget every block-1 candidate failed that nudge, and the tune wrote nothing).
+BLOCK_KEY = "sgbm.block_size"
 
 
 def parse_folds(text: str | None, n_sessions: int, holdout: str | None) -> int:
@@ -89,12 +94,22 @@ def nudges(params: StereoParams, keys: Sequence[str]) -> list[tuple[str, StereoP
         else:
             continue
         for sign in (-1, +1):
+            change = {key: value + sign * step}
+            if key == BLOCK_KEY and value + sign * step > 0:
+                change.update(_penalties_per_area(params, value + sign * step))
             try:
-                nudged = params.replace(**{key: value + sign * step})
+                nudged = params.replace(**change)
             except ConfigError:
                 continue              # off the schema (p1 >= p2, block size 1 - 2 ...): no such neighbour
             out.append((f"{key}{'+' if sign > 0 else '-'}{step}", nudged))
     return out
+
+
+def _penalties_per_area(params: StereoParams, block: int) -> dict[str, int]:
+    """P1 and P2 of ``params`` rescaled from its block size to ``block`` (same penalty per block pixel)."""
+    ratio = (block / params.sgbm.block_size) ** 2
+    p1 = max(1, round(params.sgbm.p1 * ratio))
+    return {"sgbm.p1": p1, "sgbm.p2": max(p1 + 1, round(params.sgbm.p2 * ratio))}
 
 
 @dataclass(frozen=True)

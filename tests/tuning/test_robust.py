@@ -69,6 +69,22 @@ def test_nudges_step_each_key_and_stay_on_the_schema():
     assert labels["sgbm.block_size-2"].sgbm.block_size == 1
 
 
+def test_the_block_size_nudge_keeps_p1_and_p2_per_block_pixel():
+    """SGBM adds P1/P2 to costs summed over the block, so a block-size neighbour scales them with its area
+    (OpenCV's sample: 8 and 32 x channels x block_size^2). Unscaled, block 1 -> 3 with P1 20 / P2 30 smooths a
+    ninth as much: every block-1 candidate of the default 30 x 100 tune on real pairs failed that nudge."""
+    p = DEFAULT_PARAMS.replace(**{"sgbm.block_size": 1, "sgbm.p1": 20, "sgbm.p2": 30})
+    labels = dict(nudges(p, ("sgbm.block_size",)))
+    assert set(labels) == {"sgbm.block_size+2"}                     # block -1 is off the schema
+    up = labels["sgbm.block_size+2"].sgbm
+    assert (up.block_size, up.p1, up.p2) == (3, 180, 270)
+    p = DEFAULT_PARAMS.replace(**{"sgbm.block_size": 5, "sgbm.p1": 600, "sgbm.p2": 601})
+    down = dict(nudges(p, ("sgbm.block_size",)))["sgbm.block_size-2"].sgbm
+    assert (down.block_size, down.p1, down.p2) == (3, 216, 217)     # 600 x 9 / 25; P2 stays above P1
+    # The other keys' nudges leave P1/P2 alone.
+    assert dict(nudges(p, ("sgbm.uniqueness_ratio",)))["sgbm.uniqueness_ratio+1"].sgbm.p1 == 600
+
+
 def test_cross_select_takes_the_fold_winner_best_on_the_mean_held_out_score():
     # fold 0's winner (p2 3000) is best on its own fold, worse on the other two; fold 1's (p2 4000) is good everywhere
     table = {2400: (2.0, 2.0, 2.0), 3000: (1.0, 3.0, 3.0), 4000: (1.5, 1.4, 1.6)}
