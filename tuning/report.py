@@ -107,7 +107,8 @@ def table_markdown(cmp: Mapping[str, dict], metric: str, references: Mapping[str
     folds = (selection or {}).get("folds") or []
     if len(folds) > 1:
         lines += ["", f"{len(folds)}-fold by session: each fold searched on its training sessions and chose on its "
-                  "own held-out ones (above: the fold winners, held-out = mean over the folds):", "",
+                  "own held-out ones (above: the fold winners, held-out = mean over the folds, which includes the "
+                  "sessions each trained on; the winner has the largest gain over the base on its own fold's):", "",
                   "| fold | train frames | held-out frames | base train | winner train | base held-out | "
                   "winner held-out |", "|---|---|---|---|---|---|---|"]
         for f in folds:

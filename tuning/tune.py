@@ -290,7 +290,8 @@ def tune(request: TuneRequest, hooks: Hooks = Hooks()) -> Decision:
 def _pooled_selection(fitness, base: StereoParams, result: StudyResult, selections: list[Selection],
                       cross: CrossSelection) -> Selection:
     """The k-fold choice as one Selection: the base (its cross-validated held-out value) and each pooled fold
-    winner (its mean over every fold's held-out sessions), the winner the pooled best."""
+    winner (its mean over every fold's held-out sessions, for the report), the winner ``cross.winner`` (the largest
+    gain over the base on its own fold's held-out sessions)."""
     rows = [{"params": base.to_dict(), "train": result.baseline.value, "holdout": cross.cv_base, "fragile": None}]
     rows += [{"params": p["params"], "train": selections[p["fold"]].chosen["train"], "holdout": p["mean"],
               "fragile": None, "fold": p["fold"] + 1, "holdout_per_fold": p["holdout"]} for p in cross.pool]

@@ -40,7 +40,8 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "comma list of session names / session/frame keys / frame ids")
     p.add_argument("--folds", default="auto",
                    help="k-fold over sessions: each fold searches on the other sessions and chooses on its own; "
-                        "the winner is the fold winner with the best mean held-out score, the gate the "
+                        "the winner is the fold winner with the largest gain over the base on its own held-out "
+                        "sessions (the only ones it did not train on), the gate the "
                         "cross-validated estimate. auto (default, with --holdout auto): 3 folds when the log has "
                         "2..8 sessions (k times the search cost), else one split; 1: one split")
     p.add_argument("--force", action="store_true",

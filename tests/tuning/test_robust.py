@@ -85,25 +85,27 @@ def test_the_block_size_nudge_keeps_p1_and_p2_per_block_pixel():
     assert dict(nudges(p, ("sgbm.uniqueness_ratio",)))["sgbm.uniqueness_ratio+1"].sgbm.p1 == 600
 
 
-def test_cross_select_takes_the_fold_winner_best_on_the_mean_held_out_score():
-    # fold 0's winner (p2 3000) is best on its own fold, worse on the other two; fold 1's (p2 4000) is good everywhere
-    table = {2400: (2.0, 2.0, 2.0), 3000: (1.0, 3.0, 3.0), 4000: (1.5, 1.4, 1.6)}
+def test_cross_select_takes_the_fold_winner_with_the_largest_gain_on_its_own_held_out_sessions():
+    # p2 3000 won fold 0 narrowly (1.9 against the base's 2.0) and scores superbly on folds 1-2, which it trained
+    # on; p2 4000 won fold 1 by 40 % (1.2). The mean over the folds would take 3000 (0.97 against 1.37): it
+    # rewards fitting the training sessions. Only a winner's own fold is clean: 4000 wins.
+    table = {2400: (2.0, 2.0, 2.0), 3000: (1.9, 0.5, 0.5), 4000: (1.5, 1.2, 1.4), 5000: (0.1, 0.1, 2.5)}
     ex = Scripted(lambda fs, sg: table[sg["p2"]][{"holdout": 0, "holdout1": 1, "holdout2": 2, "holdout3": 2}.get(fs, 0)])
 
     class Sel:
         def __init__(self, p2, fold):
             self.base = {"params": DEFAULT_PARAMS.to_dict(), "train": 2.0, "holdout": 2.0}
-            self.chosen = {"params": _with(600, p2), "train": 1.0, "holdout": table[p2][fold]}
+            self.chosen = {"params": _with(600, p2), "train": 1.0, "holdout": table[p2][min(fold, 2)]}
             self.winner, self.beats_base = 1, True
-    table[5000] = (0.1, 0.1, 2.5)
-    lost = Sel(5000, 2)
+    lost = Sel(5000, 3)
     lost.beats_base = False        # it lost on its own fold: never pooled, whatever it scores elsewhere
     cross = cross_select(ex, "flown", DEFAULT_PARAMS, [Sel(3000, 0), Sel(4000, 1), Sel(4000, 2), lost],
                          ["holdout", "holdout1", "holdout2", "holdout3"])
     assert len(cross.pool) == 2 and cross.pool[cross.winner]["params"]["sgbm"]["p2"] == 4000
-    assert cross.pool[0]["holdout"] == [1.0, 3.0, 3.0, 3.0]
-    assert cross.pool[cross.winner]["mean"] == pytest.approx((1.5 + 1.4 + 1.6 + 1.6) / 4)
-    assert cross.cv_tuned == pytest.approx((1.0 + 1.4 + 1.6 + 2.5) / 4) and cross.cv_base == 2.0
+    assert cross.pool[0]["holdout"] == [1.9, 0.5, 0.5, 0.5]
+    assert cross.pool[0]["own_gain"] == pytest.approx(0.05) and cross.pool[1]["own_gain"] == pytest.approx(0.4)
+    assert cross.pool[0]["mean"] < cross.pool[1]["mean"]        # the mean, reported, would have taken the other
+    assert cross.cv_tuned == pytest.approx((1.9 + 1.2 + 1.4 + 2.5) / 4) and cross.cv_base == 2.0
 
 
 def test_folds_are_auto_where_sessions_are_few_and_checked():
