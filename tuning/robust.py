@@ -36,6 +36,7 @@ from uav_depth.core.params import StereoParams, params_from_dict
 from uav_depth.tuning.executor import Executor, run_all
 from uav_depth.tuning.metrics import FARTHER_TOL_PCT
 from uav_depth.tuning.objective import FITNESS, Evaluation, Task
+from uav_depth.tuning.report import change_pct
 
 #: auto: k-fold over sessions when a log has at least 2 and at most this many sessions (else one split).
 FEW_SESSIONS = 8
@@ -95,9 +96,10 @@ def nudges(params: StereoParams, keys: Sequence[str]) -> list[tuple[str, StereoP
         else:
             continue
         for sign in (-1, +1):
-            change = {key: value + sign * step}
-            if key == BLOCK_KEY and value + sign * step > 0:
-                change.update(_penalties_per_area(params, value + sign * step))
+            new = value + sign * step
+            change = {key: new}
+            if key == BLOCK_KEY and new > 0:
+                change.update(_penalties_per_area(params, new))
             try:
                 nudged = params.replace(**change)
             except ConfigError:
@@ -205,10 +207,10 @@ def cross_select(executor: Executor, fitness_name: str, base: StereoParams, sele
 
 
 def own_gain(fitness, value: float, base_value: float) -> float:
-    """How much better ``value`` is than ``base_value`` on the same frames, as a share of the base's (> 0: better)."""
-    if not (math.isfinite(value) and math.isfinite(base_value)) or base_value == 0:
-        return -math.inf
-    return (fitness.utility(value) - fitness.utility(base_value)) / abs(base_value)
+    """How much better ``value`` is than ``base_value`` on the same frames, as a share of the base's (> 0: better;
+    -inf when the report's :func:`~uav_depth.tuning.report.change_pct` is undefined)."""
+    change = change_pct(base_value, value)
+    return -math.inf if math.isnan(change) else fitness.direction * change / 100.0
 
 
 @dataclass(frozen=True)
