@@ -750,6 +750,18 @@ def test_thin_guard_reads_an_unconfident_but_consistent_twig_in_front():
     assert m.valid and m.guarded and m.distance_m == pytest.approx(1.0, rel=1e-3)
 
 
+def test_thin_guard_reads_the_twig_behind_a_smaller_cluster_of_stray_consistent_matches():
+    """Stray left-right-consistent matches nearer than the twig (on the leafy sweep: sky and background at a
+    false disparity) that form an object of min_object_m2 but not of thin_guard_m2 must not hide the twig:
+    the guard looks for the nearest object of thin_guard_m2 (it read the 2 m wall behind both before)."""
+    res, lr = _twig_in_front()
+    d, conf = res.measured.copy(), res.confidence.copy()
+    d[200:205, 380:395] = 31.5                     # 75 px at 0.7 m, f 350 px: 3 cm^2 (2 <= 3 < 4)
+    conf[200:205, 380:395] = 0.0
+    m = ranger(RangingConfig(thin_guard_m2=4e-4)).measure(DisparityResult(d, d, conf, lr_consistent=lr))
+    assert m.valid and m.guarded and m.distance_m == pytest.approx(1.0, rel=1e-3)
+
+
 def test_thin_guard_ignores_matches_that_fail_the_left_right_check_and_small_objects():
     res, lr = _twig_in_front()
     lr[160:170, 250:330] = False
