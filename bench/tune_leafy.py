@@ -9,7 +9,7 @@ the tuned file are then measured as the daemon flies on the leafy suite's own sc
 0..``--scenes``-1 (never trained on): pipeline, Ranger, DISTANCE_SENSOR report.
 
     nice python bench/tune_leafy.py [--train 8] [--scenes 30] [--population 10 --generations 6]
-                                    [--tune-args '--folds 3 ...'] [--also LABEL:FILE ...]
+                                    [--tune-args '--folds 3 ...'] [--also LABEL:FILE ...] [--real DIR]
 
 Columns: the mean branch error (plain, symmetric; a miss = 100 %), the safety-weighted
 one the flown fitness uses (``metrics.safe_branch_error``: farther than the truth by
@@ -17,6 +17,13 @@ more than 2 % costs 100 % + the error), and the counts of scenes without a
 measurement and read farther than the truth by more than 2 % and 5 %. ``--also``
 measures other parameter files in the same run (e.g. one tuned by an earlier fitness).
 The tune runs with ``--force``; when its gate refused, the refusal is printed.
+
+``--real DIR`` (the 17 Middlebury 2006 pairs) adds real data: bench/tune_real.py's six
+training scenes join the training log as sessions (with their branch truth), the gate
+holds out the last third of the leafy sessions and the last two of those six (Midd2,
+Rocks2), and both files are also measured on the other 11 real scenes as the daemon
+flies (bench/real_ranging.py: the ranging on the pipeline's output against the same
+ranging on the ground truth).
 """
 
 from __future__ import annotations
@@ -75,6 +82,42 @@ def measure(params_file: Path, scenes: int) -> dict:
             "farther_5pct": sum(e is not None and e > 0.05 for e in errs), "per_scene": errs}
 
 
+def measure_real(data: Path, params_file: Path, scenes) -> dict:
+    """The real pairs ``scenes`` as the daemon flies (bench/real_ranging.py's reference and calibration)."""
+    from real_ranging import calibration_for, load_scene
+
+    from uav_depth.core.disparity import DisparityResult, flight_pipeline
+    from uav_depth.core.params import DEFAULT_PARAMS
+    from uav_depth.daemon.ranging import Ranger, RangingConfig, default_roi
+
+    params = load_params(params_file)
+    errs = []
+    for name in scenes:
+        left, right, gt = load_scene(data, name)
+        cal = calibration_for(gt)
+        roi = default_roi(cal.width, cal.height)
+        ref = Ranger(RangingConfig(), cal, roi, DEFAULT_PARAMS).measure(DisparityResult(gt, gt, None)).distance_m
+        got = Ranger(RangingConfig(), cal, roi, params).measure(flight_pipeline(params).run(left, right)).distance_m
+        errs.append(rel_err(got, ref) if ref is not None else None)
+    got = [abs(e) for e in errs if e is not None]
+    return {"mean_abs_err": float(np.mean(got)) if got else None, "no_measurement": sum(e is None for e in errs),
+            "within_2pct": sum(e is not None and abs(e) <= FARTHER_TOL_PCT / 100.0 for e in errs),
+            "farther_2pct": sum(e is not None and e > FARTHER_TOL_PCT / 100.0 for e in errs),
+            "worst": max((e for e in errs if e is not None), key=abs, default=None), "per_scene": dict(zip(scenes, errs))}
+
+
+def add_real(data: Path, work: Path, train_dir: Path) -> tuple[list[str], list[str]]:
+    """Link bench/tune_real.py's six training scenes into ``train_dir``; (their names, the 11 report scenes)."""
+    from tune_real import TRAIN, make_sessions
+
+    scenes = make_sessions(data, work / "real")
+    for name in TRAIN:
+        link = train_dir / name
+        if not link.exists():
+            link.symlink_to((work / "real" / "sessions" / name).resolve(), target_is_directory=True)
+    return list(TRAIN), [s for s in scenes if s not in TRAIN]
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", default="/tmp/tune_leafy")
@@ -88,10 +131,17 @@ def main() -> int:
                     help="more uav-depth tune arguments (e.g. '--folds 3 --keys default,sgbm.mode')")
     ap.add_argument("--also", action="append", default=[], metavar="LABEL:FILE",
                     help="measure this parameter file too, in the same run (repeatable)")
+    ap.add_argument("--real", type=Path, default=None, metavar="DIR",
+                    help="the 17 Middlebury 2006 pairs: train on six of them too, report on the other 11")
     args = ap.parse_args()
     t0 = time.perf_counter()
     work = Path(args.work)
     sessions = write_sessions(work / "train", args.train)
+    holdout: tuple[str, ...] = ()
+    if args.real is not None:
+        real_train, real_report = add_real(args.real, work, sessions)
+        leafy = [f"leafy{i}" for i in range(TRAIN_FROM, TRAIN_FROM + args.train)]
+        holdout = ("--holdout", ",".join(real_train[-2:] + leafy[len(leafy) - len(leafy) // 3:]))
     out, report = work / "flight-tuned.yaml", work / "report"
     if (report / "store.sqlite").exists():
         (report / "store.sqlite").unlink()
@@ -99,7 +149,7 @@ def main() -> int:
     proc = subprocess.run([sys.executable, "-m", "uav_depth.cli.main", "tune", sessions, "--base", FLIGHT_FILE,
                            "--metric", args.metric, "--population", str(args.population), "--generations",
                            str(args.generations), "--workers", args.workers, "--out", out, "--report", report,
-                           "--no-progress", "--force", *args.tune_args], capture_output=True, text=True)
+                           "--no-progress", "--force", *holdout, *args.tune_args], capture_output=True, text=True)
     if proc.returncode != 0:
         raise SystemExit(f"uav-depth tune failed ({proc.returncode}): {proc.stderr.strip()}")
     tune_s = time.perf_counter() - t0
@@ -134,6 +184,14 @@ def main() -> int:
         print(f"{name:18s} {r['mean_branch_err_pct']:19.2f}% {r['mean_safe_err_pct']:14.2f}% "
               f"{fmt_pct(r['median_abs_err']):>10s} {fmt_pct(r['mean_abs_err']):>9s} {r['no_measurement']:7d} "
               f"{r['farther_2pct']:10d} {r['farther_5pct']:10d}")
+    if args.real is not None:
+        print(f"\nreal pairs {', '.join(real_report)} (never trained on), as the daemon flies, against the ranging "
+              "on the ground truth:")
+        print(f"{'params':18s} {'mean |e|':>9s} {'within 2%':>9s} {'farther>2%':>10s} {'no meas':>7s} {'worst':>8s}")
+        for name, path in (("flight file", FLIGHT_FILE), ("tuned flight file", out)):
+            r = measure_real(args.real, path, real_report)
+            print(f"{name:18s} {fmt_pct(r['mean_abs_err']):>9s} {r['within_2pct']:>6d}/{len(real_report)} "
+                  f"{r['farther_2pct']:10d} {r['no_measurement']:7d} {fmt_pct(r['worst']):>8s}")
     print(f"\ntotal {time.perf_counter() - t0:.0f} s")
     return 0
 
