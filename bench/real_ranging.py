@@ -80,9 +80,10 @@ def calibration_for(gt: np.ndarray) -> Calibration:
 
 
 def evaluate(data: Path, params_names=("baseline", "flight"), scenes=SCENES,
-             ranging: RangingConfig | None = None) -> list[dict[str, Any]]:
-    """One row per (scene, parameter set): reference and measured distance, relative error."""
-    sets = param_sets(params_names)
+             ranging: RangingConfig | None = None, sets: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+    """One row per (scene, parameter set): reference and measured distance, relative error. ``sets``: name ->
+    StereoParams to measure instead of the named sets."""
+    sets = param_sets(params_names) if sets is None else sets
     rows = []
     for name in scenes:
         left, right, gt = load_scene(data, name)

@@ -84,21 +84,9 @@ def measure(params_file: Path, scenes: int) -> dict:
 
 def measure_real(data: Path, params_file: Path, scenes) -> dict:
     """The real pairs ``scenes`` as the daemon flies (bench/real_ranging.py's reference and calibration)."""
-    from real_ranging import calibration_for, load_scene
+    from real_ranging import evaluate
 
-    from uav_depth.core.disparity import DisparityResult, flight_pipeline
-    from uav_depth.core.params import DEFAULT_PARAMS
-    from uav_depth.daemon.ranging import Ranger, RangingConfig, default_roi
-
-    params = load_params(params_file)
-    errs = []
-    for name in scenes:
-        left, right, gt = load_scene(data, name)
-        cal = calibration_for(gt)
-        roi = default_roi(cal.width, cal.height)
-        ref = Ranger(RangingConfig(), cal, roi, DEFAULT_PARAMS).measure(DisparityResult(gt, gt, None)).distance_m
-        got = Ranger(RangingConfig(), cal, roi, params).measure(flight_pipeline(params).run(left, right)).distance_m
-        errs.append(rel_err(got, ref) if ref is not None else None)
+    errs = [r["err"] for r in evaluate(data, scenes=scenes, sets={"tuned": load_params(params_file)})]
     got = [abs(e) for e in errs if e is not None]
     return {"mean_abs_err": float(np.mean(got)) if got else None, "no_measurement": sum(e is None for e in errs),
             "within_2pct": sum(e is not None and abs(e) <= FARTHER_TOL_PCT / 100.0 for e in errs),
