@@ -310,8 +310,9 @@ class Ranger:
         The confidence gives a thin twig (a few matched pixels wide, all depth edge) almost no weight, so the
         nearest confident object can be the branch or trunk behind it: read farther than the twig (the leafy
         near sweep, docs/ranging.md). Here the same rules 1-3 find the nearest object among every measured
-        pixel that passes the left-right check, each weighing 1; if it covers at least ``thin_guard_m2`` of
-        visible area and reads nearer than ``m`` by more than :data:`THIN_GUARD_NEARER_REL` and by more than one
+        pixel that passes the left-right check, each weighing 1, that covers at least ``thin_guard_m2`` of
+        visible area (up to :data:`THIN_GUARD_MAX_SKIPPED` smaller ones in front of it, stray consistent
+        matches, are passed over); if it reads nearer than ``m`` by more than :data:`THIN_GUARD_NEARER_REL` and by more than one
         matched pixel of disparity (the coarse pass's resolution: within it, a coarse reading is no evidence
         against a fine one; without this rule the flight file's plain frames at 1.5-3 m read 5-23 % nearer),
         it replaces ``m``:
