@@ -86,11 +86,11 @@ def measure_real(data: Path, params_file: Path, scenes) -> dict:
     """The real pairs ``scenes`` as the daemon flies (bench/real_ranging.py's reference and calibration)."""
     from real_ranging import evaluate
 
-    errs = [r["err"] for r in evaluate(data, scenes=scenes, sets={"tuned": load_params(params_file)})]
+    rows = evaluate(data, scenes=scenes, sets={"tuned": load_params(params_file)})
+    errs = [r["err"] for r in rows]
     got = [abs(e) for e in errs if e is not None]
     return {"mean_abs_err": float(np.mean(got)) if got else None, "no_measurement": sum(e is None for e in errs),
-            "within_2pct": sum(e is not None and abs(e) <= FARTHER_TOL_PCT / 100.0 for e in errs),
-            "farther_2pct": sum(e is not None and e > FARTHER_TOL_PCT / 100.0 for e in errs),
+            "within_2pct": sum(r["within"] for r in rows), "farther_2pct": sum(r["farther"] for r in rows),
             "worst": max((e for e in errs if e is not None), key=abs, default=None), "per_scene": dict(zip(scenes, errs))}
 
 
