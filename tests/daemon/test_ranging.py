@@ -823,3 +823,34 @@ def test_thin_guard_never_turns_no_measurement_into_a_distance():
     res = DisparityResult(res.measured, res.measured, conf, lr_consistent=res.lr_consistent)
     r = ranger(RangingConfig(thin_guard_m2=4e-4))
     assert not r.measure(res).valid and not r.measure(res).too_close
+
+
+def _sorted_quantiles(values, weights, *qs):
+    """The definition: sort, accumulate the weight, take the first value where it reaches q."""
+    order = np.argsort(values, kind="stable")
+    v, cum = values[order], np.cumsum(weights[order], dtype=np.float64)
+    return [float(v[min(int(np.searchsorted(cum, q * cum[-1])), v.size - 1)]) for q in qs]
+
+
+@pytest.mark.parametrize("step", [1 / 16, 1 / 8, 1.0])
+def test_weighted_quantiles_on_the_matchers_grid_equal_the_sorted_definition(step):
+    # The histogram path (values on SGBM's 1/16 px grid) must give exactly what sorting gives, with
+    # confidence-like float weights, zero weights and ties, at q = 0 and 1 too.
+    from uav_depth.daemon.ranging import _weighted_quantiles
+    rng = np.random.default_rng(7)
+    for _ in range(300):
+        n = int(rng.integers(1, 2000))
+        values = (rng.integers(0, int(rng.integers(1, 700)), n) * step + 3.0).astype(np.float32)
+        weights = rng.random(n).astype(np.float32)
+        weights[rng.random(n) < 0.2] = 0.0
+        qs = (0.0, 0.5, 0.9, 1.0, float(rng.random()))
+        assert _weighted_quantiles(values, weights, *qs) == _sorted_quantiles(values, weights, *qs)
+
+
+def test_weighted_quantiles_off_the_grid_fall_back_to_the_sort():
+    from uav_depth.daemon.ranging import _weighted_quantiles
+    rng = np.random.default_rng(8)
+    values = rng.uniform(5.0, 60.0, 500)          # exact disparities: not on any 1/16 px grid
+    weights = rng.random(500)
+    assert _weighted_quantiles(values, weights, 0.1, 0.5) == _sorted_quantiles(values, weights, 0.1, 0.5)
+    assert _weighted_quantiles(values, np.ones(500), 0.5)[0] in values
