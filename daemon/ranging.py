@@ -259,11 +259,12 @@ def _weighted_quantiles(values: np.ndarray, weights: np.ndarray, *qs: float) -> 
     Tied values may be ordered either way: the value where the cumulative weight crosses
     q is the same, so the sort need not be stable (it is about twice as fast).
 
-    Disparities from the matcher lie on SGBM's grid of 1/16 px (the coarse pass's at half scale on
-    1/8 input px): then the weight is summed per grid level instead (a histogram, no sort; the sort
-    was a quarter of the ranging stage's time, docs/performance.md), and the answer is the first
-    level whose cumulative weight reaches q, the same value the sort finds. Off the grid (exact
-    disparities, tests) the sort is used."""
+    Disparities from the matcher usually lie on SGBM's grid of 1/16 px (the coarse pass's at half
+    scale on 1/8 input px, when the crop is a whole number of matched px): then the weight is summed
+    per grid level instead (a histogram, no sort; the sort was a quarter of the ranging stage's
+    time, docs/performance.md), and the answer is the first level whose cumulative weight reaches
+    q, the same value the sort finds. Off the grid (a crop scaled by a fraction, exact disparities)
+    the sort is used."""
     if values.size:
         v64 = values.astype(np.float64, copy=False)
         lo = float(v64.min())
