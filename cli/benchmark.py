@@ -324,20 +324,31 @@ def bench(flight: StereoParams, frames: int = 12, rounds: int = 20, naive_rounds
     return out
 
 
+#: The flight file's P1 per block pixel (OpenCV's sample rule: 8). SGBM charges P1 for every
+#: one-pixel step of disparity between neighbours, so a surface slanted in depth (a branch seen
+#: obliquely, a board at an angle) pays it all along; at 8 the match lags behind the slant and
+#: reads the near end farther. Measured (docs/ranging.md, *P1*, 2026-12-04): 8 -> 2 took the real
+#: pairs from 16 to 17 of 17 within 2 % (Plastic +2.50 -> +1.22 %), the oblique bench's frames
+#: farther than 2 % from 32 to 5 and the leafy sweep's from 24 to 15, for a median about 0.5-0.8 %
+#: nearer on plain synthetic branches.
+FLIGHT_P1_PER_BLOCK_PX = 2
+
+
 def flight_params(focal_px: float = 700.0, baseline_m: float = 0.063, scale: float = 0.5,
                   block_size: int = 3, fine_disparities: int = 32) -> StereoParams:
     """The recommended flight settings for a camera (ZED Mini at 1280x720 by default).
 
     Centre third plus the search margin, half resolution, grey, SGBM 3-way, WLS
     at the matched resolution, the disparity range of the 0.3..3 m working
-    distance, P1/P2 by OpenCV's rule for one channel, and the ranged object re-matched at full
-    resolution over ``fine_disparities`` (docs/ranging.md). ``deploy/params-flight.yaml``
+    distance, P2 by OpenCV's rule for one channel (32 x block area) and P1 a quarter of that
+    rule (2 x block area, :data:`FLIGHT_P1_PER_BLOCK_PX`), and the ranged object re-matched at
+    full resolution over ``fine_disparities`` (docs/ranging.md). ``deploy/params-flight.yaml``
     is this for the defaults.
     """
     min_d, num_d = disparity_search_range(focal_px, baseline_m, WORKING_NEAR_M, scale=scale)
     return DEFAULT_PARAMS.replace(**{
         "sgbm.mode": "sgbm_3way", "sgbm.min_disparity": min_d, "sgbm.num_disparities": num_d,
-        "sgbm.block_size": block_size, "sgbm.p1": 8 * block_size ** 2, "sgbm.p2": 32 * block_size ** 2,
+        "sgbm.block_size": block_size, "sgbm.p1": FLIGHT_P1_PER_BLOCK_PX * block_size ** 2, "sgbm.p2": 32 * block_size ** 2,
         "compute.roi": list(FLIGHT_ROI), "compute.scale": scale, "compute.grey": True, "compute.wls_at": "matched",
         "compute.fine_disparities": fine_disparities})
 
