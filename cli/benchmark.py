@@ -329,8 +329,8 @@ def bench(flight: StereoParams, frames: int = 12, rounds: int = 20, naive_rounds
 #: obliquely, a board at an angle) pays it all along; at 8 the match lags behind the slant and
 #: reads the near end farther. Measured (docs/ranging.md, *P1*, 2026-12-04): 8 -> 2 took the real
 #: pairs from 16 to 17 of 17 within 2 % (Plastic +2.50 -> +1.22 %), the oblique bench's frames
-#: farther than 2 % from 32 to 5 and the leafy sweep's from 24 to 15, for a median about 0.5-0.8 %
-#: nearer on plain synthetic branches.
+#: farther than 2 % from 32 to 5 and the leafy 1 cm sweep's from 87 to 60, for readings about 0.7 %
+#: nearer in the median on plain synthetic branches (1.26 -> 1.98 % median abs error, all nearer).
 FLIGHT_P1_PER_BLOCK_PX = 2
 
 
@@ -348,7 +348,8 @@ def flight_params(focal_px: float = 700.0, baseline_m: float = 0.063, scale: flo
     min_d, num_d = disparity_search_range(focal_px, baseline_m, WORKING_NEAR_M, scale=scale)
     return DEFAULT_PARAMS.replace(**{
         "sgbm.mode": "sgbm_3way", "sgbm.min_disparity": min_d, "sgbm.num_disparities": num_d,
-        "sgbm.block_size": block_size, "sgbm.p1": FLIGHT_P1_PER_BLOCK_PX * block_size ** 2, "sgbm.p2": 32 * block_size ** 2,
+        "sgbm.block_size": block_size, "sgbm.p1": FLIGHT_P1_PER_BLOCK_PX * block_size ** 2,
+        "sgbm.p2": 32 * block_size ** 2,
         "compute.roi": list(FLIGHT_ROI), "compute.scale": scale, "compute.grey": True, "compute.wls_at": "matched",
         "compute.fine_disparities": fine_disparities})
 
