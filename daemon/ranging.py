@@ -254,7 +254,7 @@ _QUANTILE_MAX_LEVELS = 1 << 16
 
 
 def _weighted_quantiles(values: np.ndarray, weights: np.ndarray, *qs: float) -> list[float]:
-    """The values that leave a share q of the weight below them, for each q (one sort).
+    """The values that leave a share q of the weight below them, for each q (one histogram or one sort).
 
     Tied values may be ordered either way: the value where the cumulative weight crosses
     q is the same, so the sort need not be stable (it is about twice as fast).

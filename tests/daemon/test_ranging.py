@@ -13,7 +13,7 @@ from uav_depth.daemon.ranging import RangingConfig
 from uav_depth.core.disparity import DisparityPipeline, DisparityResult
 from uav_depth.core.errors import ConfigError
 from uav_depth.core.params import DEFAULT_PARAMS, load_params
-from uav_depth.daemon.ranging import OutlierGate, Ranger, default_roi, resolve_roi
+from uav_depth.daemon.ranging import OutlierGate, Ranger, _weighted_quantiles, default_roi, resolve_roi
 from uav_depth.sim.scene import Scene, SceneConfig
 
 PARAMS = DEFAULT_PARAMS.replace(**{"sgbm.num_disparities": 64})
@@ -837,7 +837,6 @@ def _sorted_quantiles(values, weights, *qs):
 def test_weighted_quantiles_on_the_matchers_grid_equal_the_sorted_definition(step):
     # The histogram path (values on SGBM's 1/16 px grid) must give exactly what sorting gives, with
     # confidence-like float weights, zero weights and ties, at q = 0 and 1 too.
-    from uav_depth.daemon.ranging import _weighted_quantiles
     rng = np.random.default_rng(7)
     for _ in range(300):
         n = int(rng.integers(1, 2000))
@@ -849,7 +848,6 @@ def test_weighted_quantiles_on_the_matchers_grid_equal_the_sorted_definition(ste
 
 
 def test_weighted_quantiles_off_the_grid_fall_back_to_the_sort():
-    from uav_depth.daemon.ranging import _weighted_quantiles
     rng = np.random.default_rng(8)
     values = rng.uniform(5.0, 60.0, 500)          # exact disparities: not on any 1/16 px grid
     weights = rng.random(500)
