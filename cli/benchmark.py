@@ -176,6 +176,11 @@ def make_frames(n: int = 12, width: int = 1280, height: int = 720, seed: int = 0
     return out
 
 
+#: OpenCV's sample rule for P1 / P2 per block pixel, one channel (samples/python/stereo_match.py multiplies by 3).
+OPENCV_P1_PER_BLOCK_PX = 8
+OPENCV_P2_PER_BLOCK_PX = 32
+
+
 def lever_variants(flight: StereoParams, rounds: int, naive_rounds: int) -> list[Variant]:
     """The naive pipeline, then one lever added at a time up to ``flight``'s settings.
 
@@ -187,7 +192,8 @@ def lever_variants(flight: StereoParams, rounds: int, naive_rounds: int) -> list
     bs = DEFAULT_PARAMS.sgbm.block_size
     steps: list[tuple[str, dict[str, Any], int, str]] = [
         ("+roi", {"compute.roi": list(roi)}, mid, "match the ROI plus the search margin only"),
-        ("+grey", {"compute.grey": True, "sgbm.p1": 8 * bs * bs, "sgbm.p2": 32 * bs * bs}, mid,
+        ("+grey", {"compute.grey": True, "sgbm.p1": OPENCV_P1_PER_BLOCK_PX * bs * bs,
+                   "sgbm.p2": OPENCV_P2_PER_BLOCK_PX * bs * bs}, mid,
          "grey matching, P1/P2 for one channel"),
         ("+3way", {"sgbm.mode": "sgbm_3way"}, mid, "SGBM 3-way mode"),
         ("+scale", {"compute.scale": flight.compute.scale,
@@ -324,7 +330,7 @@ def bench(flight: StereoParams, frames: int = 12, rounds: int = 20, naive_rounds
     return out
 
 
-#: The flight file's P1 per block pixel (OpenCV's sample rule: 8). SGBM charges P1 for every
+#: The flight file's P1 per block pixel (OpenCV's sample rule: OPENCV_P1_PER_BLOCK_PX). SGBM charges P1 for every
 #: one-pixel step of disparity between neighbours, so a surface slanted in depth (a branch seen
 #: obliquely, a board at an angle) pays it all along; at 8 the match lags behind the slant and
 #: reads the near end farther. Measured (docs/ranging.md, *P1*, 2026-12-04): 8 -> 2 took the real
@@ -349,7 +355,7 @@ def flight_params(focal_px: float = 700.0, baseline_m: float = 0.063, scale: flo
     return DEFAULT_PARAMS.replace(**{
         "sgbm.mode": "sgbm_3way", "sgbm.min_disparity": min_d, "sgbm.num_disparities": num_d,
         "sgbm.block_size": block_size, "sgbm.p1": FLIGHT_P1_PER_BLOCK_PX * block_size ** 2,
-        "sgbm.p2": 32 * block_size ** 2,
+        "sgbm.p2": OPENCV_P2_PER_BLOCK_PX * block_size ** 2,
         "compute.roi": list(FLIGHT_ROI), "compute.scale": scale, "compute.grey": True, "compute.wls_at": "matched",
         "compute.fine_disparities": fine_disparities})
 

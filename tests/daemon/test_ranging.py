@@ -627,7 +627,6 @@ def test_the_fine_pass_looks_into_columns_the_coarse_pass_could_not_answer():
 
 
 def test_the_fine_pass_reads_a_hover_at_3_m_no_farther_than_the_coarse_pass_and_precisely_enough_for_the_wire():
-    from uav_depth.daemon.ranging import WIRE_SIGMA_MAX_M
     """640x360 laptop camera (f = 350 px), flight file for it: at 3 m half-scale matching leaves about 3.7
     matched px of disparity; the coarse pass read this frame 27 cm too far before the slant rule, 15 cm near
     with it and 4 cm far since unmatched neighbours no longer zero the confidence; with P1 18 (docs/ranging.md,
@@ -635,6 +634,7 @@ def test_the_fine_pass_reads_a_hover_at_3_m_no_farther_than_the_coarse_pass_and_
     the truth by more than the coarse one is, nor 3 % from the truth either way, its error is inside two of its
     sigmas, and it is precise enough for the wire (sigma under 15.9 cm) where the coarse one is not."""
     from uav_depth.core.disparity import flight_pipeline
+    from uav_depth.daemon.ranging import WIRE_SIGMA_MAX_M
 
     flight = load_params(FLIGHT_FILE.with_name("params-flight-640x360.yaml"))
     assert flight.compute.fine_disparities == 32
