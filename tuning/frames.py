@@ -125,6 +125,15 @@ def load_frame(record: FrameRecord) -> FrameData:
 AUTO_FRACTION = 0.3
 
 
+def _is_dir(text: str) -> bool:
+    """Whether ``text`` names a directory; False for text no path can be (a list of names longer than the
+    system's name limit raises OSError from stat, which is not a directory either)."""
+    try:
+        return Path(text).is_dir()
+    except (OSError, ValueError):
+        return False
+
+
 def split_records(logdir: str | os.PathLike[str], holdout: str | None) -> tuple[list[FrameRecord], list[FrameRecord]]:
     """Train and held-out frame records of ``logdir`` by the ``--holdout`` rule.
 
@@ -150,8 +159,8 @@ def split_records(logdir: str | os.PathLike[str], holdout: str | None) -> tuple[
         if len(records) < 2:
             return records, []
         holdout = str(AUTO_FRACTION)
-    path = Path(holdout)
-    if path.is_dir():
+    if _is_dir(holdout):
+        path = Path(holdout)
         held = list(iter_frames(path))
         held_keys = {(r.session.path.resolve(), r.frame_id) for r in held}
         train = [r for r in records if (r.session.path.resolve(), r.frame_id) not in held_keys]
