@@ -215,13 +215,17 @@ def own_gain(fitness, value: float, base_value: float) -> float:
 
 @dataclass(frozen=True)
 class FartherCheck:
-    """Frames read farther than the truth by more than FARTHER_TOL_PCT: the base's and the candidate's counts
-    on the same ``frames`` frames with branch truth. ``reason``: the gate's one line when refused, else None."""
+    """What the daemon would fly, base against candidate, on the same ``frames`` frames with branch truth:
+    ``base``/``tuned``, the frames read farther than the truth by more than FARTHER_TOL_PCT;
+    ``base_safe``/``tuned_safe``, the mean safety-weighted branch-distance error (%, metrics.safe_branch_error;
+    None without such frames). ``reason``: the gate's one line when refused, else None."""
 
     base: int
     tuned: int
     frames: int
     reason: str | None
+    base_safe: float | None = None
+    tuned_safe: float | None = None
 
 
 def count_farther(evaluations: Sequence[Evaluation]) -> tuple[int, int]:
@@ -231,14 +235,24 @@ def count_farther(evaluations: Sequence[Evaluation]) -> tuple[int, int]:
     return int(sum(flag > 0 for flag in flags)), len(flags)
 
 
+def mean_safe_branch(evaluations: Sequence[Evaluation]) -> float | None:
+    """Mean safety-weighted branch-distance error (%) over the frames with branch truth, None without any."""
+    values = [f["branch_safe"] for ev in evaluations for f in ev.frame_metrics if "branch_safe" in f]
+    return float(sum(values) / len(values)) if values else None
+
+
 def farther_check(base: Sequence[Evaluation], tuned: Sequence[Evaluation], where: str = "held-out") -> FartherCheck:
-    """The gate's safety rule: refuse a candidate that reads more frames farther than the truth than its base.
+    """The gate's safety rules on what flies: refuse a candidate that reads more frames farther than the truth
+    than its base, or whose safety-weighted branch-distance error is larger than the base's.
 
     ``base`` and ``tuned``: full evaluations of the two on the same frame sets (the frames the choice was made
-    on). Equal counts pass (the score then decides); frames without branch truth do not count.
+    on). Equal counts and equal errors pass (the score then decides); frames without branch truth do not count.
+    The error rule matters where the fitness mixes the map with the branch (``flown``): a better map must not
+    buy a worse distance, the one number the daemon sends.
     """
     nb, frames = count_farther(base)
     nt, frames_t = count_farther(tuned)
+    sb, st = mean_safe_branch(base), mean_safe_branch(tuned)
     reason = None
     if frames_t != frames:      # the candidate failed on some: it cannot be shown to read no farther
         reason = (f"the tuned parameters were ranged on {frames_t} of the {frames} {where} frame(s) with branch "
@@ -246,4 +260,7 @@ def farther_check(base: Sequence[Evaluation], tuned: Sequence[Evaluation], where
     elif nt > nb:
         reason = (f"the tuned parameters read {nt} of {frames} {where} frame(s) farther than the branch truth by "
                   f"more than {FARTHER_TOL_PCT:g} %, the base {nb}")
-    return FartherCheck(nb, nt, frames, reason)
+    elif sb is not None and st is not None and st > sb:
+        reason = (f"the tuned parameters' safety-weighted branch-distance error on the {frames} {where} frame(s) "
+                  f"with branch truth is {st:.4g} %, the base's {sb:.4g} %")
+    return FartherCheck(nb, nt, frames, reason, sb, st)

@@ -11,7 +11,9 @@ in order for one request and says whether the result may be written (:attr:`Deci
 - it beats the base on the frames it was chosen on (with folds: its mean over every fold's held-out sessions),
   and, with folds, the cross-validated estimate (each fold's winner on its own held-out sessions, every number
   held out) beats the base's there;
-- it reads no more frames farther than the branch truth by more than 2 % than the base does, counted only
+- it reads no more frames farther than the branch truth by more than 2 % than the base does, and its mean
+  safety-weighted branch-distance error is no larger than the base's (a better map must not buy a worse
+  distance), counted only
   on frames it did not train on: with folds, on its own fold's held-out sessions (a pooled winner trained on
   the other folds' held-out sessions), and in the cross-validated view (each fold's winner on its own held-out
   sessions) as well;
@@ -172,7 +174,8 @@ class Decision:
 
 
 def _farther_doc(check: FartherCheck) -> dict[str, Any]:
-    return {"base": check.base, "tuned": check.tuned, "frames": check.frames, "refused": check.reason}
+    return {"base": check.base, "tuned": check.tuned, "frames": check.frames, "refused": check.reason,
+            "base_branch_safe": check.base_safe, "tuned_branch_safe": check.tuned_safe}
 
 
 def _folds_summary(selections: list[Selection], folds: list[tuple[FrameSet, FrameSet]]) -> list[dict]:

@@ -70,6 +70,25 @@ def test_farther_check_refuses_more_farther_frames_than_the_base_and_passes_as_m
     assert "ranged on 0 of the 1" in farther_check([_ev(0)], [Evaluation("failed", math.inf)]).reason
 
 
+def _evs(*pairs):
+    """One evaluation of frames given as (farther flag, safety-weighted branch error %)."""
+    return Evaluation(OK, 0.0, frame_metrics=tuple({"farther": float(f), "branch_safe": float(e)} for f, e in pairs))
+
+
+def test_farther_check_refuses_a_larger_branch_error_at_the_same_farther_count():
+    """A better map (the flown fitness's larger part) must not buy a worse distance: as many farther frames as
+    the base, but a miss where the base read within 1 %, is refused; an equal or smaller error passes."""
+    base = [_evs((0, 1.0), (0, 2.0))]
+    worse = farther_check(base, [_evs((0, 100.0), (0, 2.0))])
+    assert (worse.base, worse.tuned, worse.base_safe, worse.tuned_safe) == (0, 0, 1.5, 51.0)
+    assert worse.reason == ("the tuned parameters' safety-weighted branch-distance error on the 2 held-out frame(s) "
+                            "with branch truth is 51 %, the base's 1.5 %")
+    assert farther_check(base, [_evs((0, 0.5), (0, 2.5))]).reason is None          # 1.5 against 1.5: equal passes
+    assert farther_check(base, [_evs((0, 0.5), (0, 1.0))]).tuned_safe == 0.75
+    # the farther count is still the first reason given
+    assert "farther than the branch truth" in farther_check(base, [_evs((1, 103.0), (0, 2.0))]).reason
+
+
 def cli(*args):
     return subprocess.run([sys.executable, "-m", "uav_depth.cli.main", *map(str, args)], capture_output=True,
                           text=True, timeout=600)

@@ -25,10 +25,14 @@ def cli(*args, check=True):
 
 
 def _args(root, *extra, generations=12):
-    """The paper's metric on all four frames (no held-out frame: the gate compares on the training frames)."""
+    """The paper's metric on all four frames (no held-out frame: the gate compares on the training frames).
+
+    ``--force``: these runs test the store, resume and report, not the gate (its own tests are below and in
+    test_farther.py). The gate refuses this run's file: the paper's MSE on the WLS map improves, the daemon's
+    branch distance on the same frames gets worse (safety-weighted 54 % -> 77 %), which is issue 12's point."""
     return ["tune", root / "s", "--base", root / "base.yaml", "--optimizer", "ga", "--metric", "mse",
             "--holdout", "none", "--population", "8", "--generations", str(generations), "--seed", "4",
-            "--workers", "2", "--no-progress", *extra]
+            "--workers", "2", "--no-progress", "--force", *extra]
 
 
 @pytest.fixture(scope="module")
@@ -228,6 +232,17 @@ def test_tune_refuses_to_write_a_worse_file_and_keeps_the_candidate_beside_it(ti
     assert load_params(rejected) != load_params(good)      # the search's candidate, not the base again
     forced = cli(*args, "--store", tmp_path / "b.sqlite", "--force")
     assert "--force" in forced.stdout and read_provenance(out)["forced"] is True
+
+
+def test_tune_refuses_a_better_map_that_ranges_worse(tiny_session, tmp_path):
+    """The paper's MSE improves on these frames while the daemon's branch distance gets worse: not written."""
+    out = tmp_path / "p.yaml"
+    args = [a for a in _args(tiny_session, "--store", tmp_path / "s.sqlite", "--out", out) if a != "--force"]
+    proc = cli(*args, check=False)
+    assert proc.returncode == 1 and not out.exists(), proc.stdout
+    assert "safety-weighted branch-distance error on the 4 training frame(s)" in proc.stderr
+    prov = read_provenance(tmp_path / "p.rejected.yaml")
+    assert prov["fitness"] < prov["baseline_fitness"]       # it did beat the base on the fitness it was given
 
 
 @pytest.mark.skipif(os.geteuid() != 0, reason="giving a file to another owner needs root")
