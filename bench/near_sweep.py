@@ -32,7 +32,7 @@ import json
 import math
 import sys
 import time
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -41,14 +41,9 @@ from scenebench import (PARAM_SET_NAMES, Measurer, add_ranging_args, flight_max_
 
 from uav_depth.cli.benchmark import machine_line
 from uav_depth.daemon.ranging import RangingConfig
-from uav_depth.sim.scene import SceneConfig, vary
+from uav_depth.sim.scene import SceneConfig
+from uav_depth.sim.sweep import QUICK_DISTANCES, VARIANTS
 
-VARIANTS: dict[str, Callable[[float, int], SceneConfig]] = {
-    "plain": lambda d, seed: SceneConfig(seed=seed, branch_distance_m=d, branch_radius_m=0.03),
-    "varied": lambda d, seed: vary(SceneConfig(), np.random.default_rng([seed, 101]), branch_distance_m=d),
-    "leafy": lambda d, seed: SceneConfig.leafy(seed=seed, branch_distance_m=d),
-}
-QUICK_DISTANCES = (0.05, 0.10, 0.15, 0.20, 0.25, 0.27, 0.29, 0.32, 0.40, 0.60, 1.00, 1.50, 2.00, 3.00)
 FARTHER_TOL = 0.02
 
 

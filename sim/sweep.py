@@ -1,0 +1,52 @@
+"""Near sweeps: one branch placed at a list of distances, from inside a rig's minimum range to its working
+distance, in three scene variants. ``bench/near_sweep.py`` measures both parameter files on them, and
+``uav-depth tune`` checks a candidate on the quick sweep before writing it (its safety sweep), at the rig of
+the log it tuned on.
+
+Variants: ``plain`` (issue 11's reproduction: a 3 cm branch), ``varied`` (:func:`~uav_depth.sim.scene.vary`:
+imaging conditions and geometry drawn per seed) and ``leafy`` (``SceneConfig.leafy``: twigs, needles and a small
+branch in front, sky, shadows, the eyes' differences). The truth of a frame is the nearest significant object
+in its centre region (:mod:`uav_depth.sim.truth`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Callable, Iterator
+
+import numpy as np
+
+from uav_depth.sim.scene import Scene, SceneConfig, vary
+
+VARIANTS: dict[str, Callable[[float, int], SceneConfig]] = {
+    "plain": lambda d, seed: SceneConfig(seed=seed, branch_distance_m=d, branch_radius_m=0.03),
+    "varied": lambda d, seed: vary(SceneConfig(), np.random.default_rng([seed, 101]), branch_distance_m=d),
+    "leafy": lambda d, seed: SceneConfig.leafy(seed=seed, branch_distance_m=d),
+}
+#: The quick sweep: inside the minimum range of both shipped files (0.05-0.27 m), across it, and out to 3 m.
+QUICK_DISTANCES = (0.05, 0.10, 0.15, 0.20, 0.25, 0.27, 0.29, 0.32, 0.40, 0.60, 1.00, 1.50, 2.00, 3.00)
+QUICK_SEEDS = (0, 1)
+
+
+def at_rig(cfg: SceneConfig, width: int, height: int, focal_px: float, baseline_m: float) -> SceneConfig:
+    """``cfg`` seen by another camera: the same scene in metres, that image size, focal length and baseline."""
+    return replace(cfg, width=int(width), height=int(height), focal_px=float(focal_px), baseline_m=float(baseline_m))
+
+
+def quick_sweep(width: int | None = None, height: int | None = None, focal_px: float | None = None,
+                baseline_m: float | None = None) -> Iterator[tuple[str, SceneConfig]]:
+    """(key, scene) of the quick sweep, at the given rig (each value defaults to SceneConfig's)."""
+    default = SceneConfig()
+    rig = (width or default.width, height or default.height, focal_px or default.focal_px,
+           baseline_m or default.baseline_m)
+    for variant, make in VARIANTS.items():
+        for seed in QUICK_SEEDS:
+            for d in QUICK_DISTANCES:
+                yield f"{variant}-s{seed}-{d:.2f}m", at_rig(make(d, seed), *rig)
+
+
+def render_with_truth(cfg: SceneConfig) -> tuple[np.ndarray, np.ndarray, float, tuple[int, int, int, int]]:
+    """(left, right, truth m, centre region px) of ``cfg`` at the identity pose, its noise seeded by its seed."""
+    frame = Scene(cfg).render(rng=np.random.default_rng([cfg.seed, 0]))
+    roi = cfg.center_roi
+    return frame.left, frame.right, float(frame.truth(roi).significant_m), roi

@@ -1,0 +1,34 @@
+"""sim.sweep: the near sweep's scenes, at any rig (bench/near_sweep.py and tune's safety sweep)."""
+
+from __future__ import annotations
+
+import math
+
+from uav_depth.sim.scene import SceneConfig
+from uav_depth.sim.sweep import QUICK_DISTANCES, QUICK_SEEDS, VARIANTS, at_rig, quick_sweep, render_with_truth
+
+
+def test_the_quick_sweep_covers_every_variant_seed_and_distance_once_at_the_rig_asked():
+    scenes = list(quick_sweep(640, 360, 350.0, 0.12))
+    assert len(scenes) == len(VARIANTS) * len(QUICK_SEEDS) * len(QUICK_DISTANCES) == 84
+    assert len({k for k, _ in scenes}) == 84
+    assert all((c.width, c.height, c.focal_px, c.baseline_m) == (640, 360, 350.0, 0.12) for _, c in scenes)
+    assert {c.branch_distance_m for _, c in scenes} == set(QUICK_DISTANCES)
+    default = dict(quick_sweep())["plain-s0-1.00m"]
+    assert (default.width, default.focal_px) == (SceneConfig().width, SceneConfig().focal_px)
+
+
+def test_at_rig_keeps_the_scene_in_metres():
+    leafy = VARIANTS["leafy"](0.8, 3)
+    small = at_rig(leafy, 320, 180, 175.0, 0.063)
+    assert small.branch_distance_m == leafy.branch_distance_m and small.seed == leafy.seed
+    assert small.rect_error_px == leafy.rect_error_px and small.width == 320
+
+
+def test_render_with_truth_gives_the_nearest_significant_object_in_the_centre_region():
+    cfg = at_rig(VARIANTS["plain"](0.6, 0), 320, 180, 175.0, 0.063)
+    left, right, truth_m, roi = render_with_truth(cfg)
+    assert left.shape == right.shape == (180, 320)
+    assert roi == cfg.center_roi
+    # the 3 cm branch's near surface, at its axis distance less about its radius
+    assert math.isfinite(truth_m) and 0.55 < truth_m <= 0.6
