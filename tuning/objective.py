@@ -140,6 +140,20 @@ def branch_distance(frame: FrameData, res: DisparityResult, params: StereoParams
     return branch_reading(frame, res, params).distance_m
 
 
+def branch_distances(params: StereoParams, frames: FrameSet) -> list[float | None]:
+    """The daemon's distance on each frame as it flies (core.disparity.flight_pipeline, then its ranging stage),
+    None where it measured nothing: unlike :func:`evaluate`, a frame the matcher answers nowhere (a branch filling
+    the view) is a frame without a measurement, not a failed candidate. Raises what the pipeline raises."""
+    pipeline = flight_pipeline(params)
+    out = []
+    for frame in frames.frames:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ParameterWarning)
+            res = pipeline.run(frame.left, frame.right)
+        out.append(None if res.warning is not None else branch_distance(frame, res, params))
+    return out
+
+
 def branch_measurement(frame: FrameData, res: DisparityResult, params: StereoParams) -> tuple[float | None, float]:
     """(distance m or None, plain symmetric error % against the frame's truth: metrics.branch_error)."""
     distance = branch_distance(frame, res, params)

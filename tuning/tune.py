@@ -17,6 +17,10 @@ in order for one request and says whether the result may be written (:attr:`Deci
   on frames it did not train on: with folds, on its own fold's held-out sessions (a pooled winner trained on
   the other folds' held-out sessions), and in the cross-validated view (each fold's winner on its own held-out
   sessions) as well;
+- on the safety sweep (``TuneRequest.safety``: synthetic frames the caller renders at the log's rig, from
+  inside the minimum range out to the working distance), it reads no more frames farther than the truth than
+  the base does: a log holds few frames near the minimum range or with twigs in front, and those are where a
+  tuned matcher goes wrong unseen (a file this gate wrote sent a branch inside the minimum range as a distance);
 - with ``max_ms``, some evaluated candidate runs within the frame-time budget (else :attr:`Decision.blocked`).
 """
 
@@ -33,8 +37,9 @@ from uav_depth.core.params import StereoParams, params_from_dict
 from uav_depth.core.session import find_sessions
 
 from uav_depth.tuning.executor import Executor, make_executor, run_all
-from uav_depth.tuning.frames import FrameSet, load_folds, load_split
-from uav_depth.tuning.objective import FITNESS, FLOWN_FITNESS, Task, default_convention
+from uav_depth.tuning.frames import FrameData, FrameSet, load_folds, load_split
+from uav_depth.tuning.metrics import FARTHER_TOL_PCT, is_farther
+from uav_depth.tuning.objective import FITNESS, FLOWN_FITNESS, Task, branch_distances, default_convention
 from uav_depth.tuning.optimizers import make_space
 from uav_depth.tuning.report import comparison
 from uav_depth.tuning.robust import CrossSelection, FartherCheck, cross_select, farther_check, parse_folds
@@ -72,6 +77,9 @@ class TuneRequest:
     max_ms: float | None = None
     workers: int | None = None
     ray_address: str | None = None
+    #: The safety sweep's frames at the rig of a given frame of the log (its size, focal length and baseline),
+    #: or None for no safety sweep. Injected by the caller: the tuner renders nothing itself.
+    safety: Callable[[FrameData], FrameSet] | None = None
 
     def __post_init__(self) -> None:
         if self.timeout_s is not None and not self.timeout_s > 0:
@@ -134,6 +142,8 @@ class Decision:
     executor_kind: str
     workers: int
     points: list[tuple[float, float]] = field(default_factory=list)
+    #: The safety sweep's farther counts (base, chosen), None when none ran (TuneRequest.safety, safety_check).
+    safety: FartherCheck | None = None
 
     @property
     def metric(self) -> str:
@@ -157,6 +167,7 @@ class Decision:
         far = _farther_doc(self.farther)
         if self.cv_farther is not None:
             far["cross_validated"] = _farther_doc(self.cv_farther)
+        far["safety_sweep"] = None if self.safety is None else _farther_doc(self.safety)
         cmp = comparison({n: self.scores[(0, n)] for n in self.names}, {n: self.scores[(1, n)] for n in self.names})
         out = result_summary(self.result)
         out.update(comparison=cmp, convention=self.convention,
@@ -282,12 +293,36 @@ def tune(request: TuneRequest, hooks: Hooks = Hooks()) -> Decision:
         f" (fold {cross.pool[cross.winner]['fold'] + 1}'s own)" if cross is not None and cross.winner is not None
         else "")
     farther = farther_check([scores[(0, n)] for n in own], [scores[(1, n)] for n in own], where)
+    safety = safety_check(request, chosen, framesets["train"], hooks)
     beats = selection.beats_base and (cross is None or fitness.utility(cross.cv_tuned) > fitness.utility(cross.cv_base))
     blocked = f"--max-ms: {budget['reason']}" if budget and budget["reason"] else None
-    refused = None if blocked else _refusal(metric, k, selection, cross, folds[0][1], beats, farther, cv_farther)
+    refused = None if blocked else _refusal(metric, k, selection, cross, folds[0][1], beats, farther, cv_farther,
+                                            safety)
     return Decision(request, k, framesets, names, studies[0], results[0], selection, selections, folds, cross,
                     chosen, selection.chosen["train"], scores, beats, farther, cv_farther, budget, front, refused,
-                    blocked, kind, workers, points)
+                    blocked, kind, workers, points, safety)
+
+
+def safety_check(request: TuneRequest, chosen: StereoParams, train: FrameSet, hooks: Hooks) -> FartherCheck | None:
+    """The base and the chosen parameters on the safety sweep at the log's rig (the first training frame with a
+    calibration), as the daemon flies (objective.branch_distances): the frames each reads farther than the truth
+    by more than FARTHER_TOL_PCT, and the refusal when the chosen reads more. The count alone, not the error:
+    synthetic scenes judge safety here, the log's own frames judge accuracy. None without a sweep, a calibrated
+    frame, or a change to check."""
+    if request.safety is None or chosen == request.base:
+        return None
+    sample = next((f for f in train.frames if f.focal_px and f.baseline_m), None)
+    if sample is None:
+        return None
+    hooks.phase("the safety sweep: the base and the chosen parameters on synthetic branches from inside the "
+                "minimum range out to 3 m")
+    frames = request.safety(sample)
+    truths = [f.branch_distance_m for f in frames.frames]
+    nb, nt = (sum(is_farther(d, t) for d, t in zip(branch_distances(p, frames), truths))
+              for p in (request.base, chosen))
+    reason = None if nt <= nb else (f"the tuned parameters read {nt} of the {len(frames)} safety-sweep frame(s) "
+                                    f"farther than the truth by more than {FARTHER_TOL_PCT:g} %, the base {nb}")
+    return FartherCheck(nb, nt, len(frames), reason)
 
 
 def _pooled_selection(fitness, base: StereoParams, result: StudyResult, selections: list[Selection],
@@ -319,7 +354,8 @@ def farther_sets(k: int, selection: Selection, cross: CrossSelection | None, nam
 
 
 def _refusal(metric: str, k: int, selection: Selection, cross: CrossSelection | None, holdout: FrameSet,
-             beats: bool, farther: FartherCheck, cv_farther: FartherCheck | None) -> str | None:
+             beats: bool, farther: FartherCheck, cv_farther: FartherCheck | None,
+             safety: FartherCheck | None = None) -> str | None:
     """The gate's one line, or None when the chosen parameters may replace the base."""
     reasons = []
     if not beats:
@@ -333,5 +369,5 @@ def _refusal(metric: str, k: int, selection: Selection, cross: CrossSelection | 
             reasons.append(f"the tuned parameters do not beat the base on {where} ({metric} "
                            f"{selection.chosen[selection.on]:.4g} vs base {selection.base[selection.on]:.4g})")
     # reading farther than the branch is refused like a worse score
-    reasons += [c.reason for c in (farther, cv_farther) if c is not None and c.reason]
+    reasons += [c.reason for c in (farther, cv_farther, safety) if c is not None and c.reason]
     return "; ".join(reasons) if reasons else None

@@ -68,6 +68,10 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="continue the run held in the store (more --generations or --runs extend it)")
     p.add_argument("--max-ms", type=float, default=None,
                    help="choose the best candidate whose frame time (re-timed here) is at most this")
+    p.add_argument("--safety-sweep", choices=("quick", "none"), default="quick",
+                   help="quick (default): before writing, check the chosen parameters on synthetic branches from "
+                        "inside the minimum range out to 3 m (84 frames rendered at the log's rig) and refuse them "
+                        "when they read more of those frames farther than the truth than the base does; none: skip")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -83,6 +87,21 @@ def rejected_path(out: str) -> str:
     """Where a candidate that did not beat its base is written: beside --out, never over it."""
     root, ext = os.path.splitext(out)
     return f"{root}.rejected{ext or '.yaml'}"
+
+
+def safety_frames(sample):
+    """The quick near sweep (uav_depth.sim.sweep) rendered at the rig of ``sample`` (a FrameData of the log):
+    its image size, focal length and baseline; each frame knows the nearest significant object's distance."""
+    from uav_depth.sim.sweep import quick_sweep, render_with_truth
+    from uav_depth.tuning.frames import FrameData, FrameSet
+
+    h, w = sample.left.shape[:2]
+    frames = []
+    for key, cfg in quick_sweep(w, h, sample.focal_px, sample.baseline_m):
+        left, right, truth_m, roi = render_with_truth(cfg)
+        frames.append(FrameData(f"safety/{key}", left, right, branch_distance_m=truth_m, roi=roi,
+                                focal_px=cfg.focal_px, baseline_m=cfg.baseline_m, reference_source="synthetic"))
+    return FrameSet("safety", tuple(frames))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -115,7 +134,8 @@ def run(args: argparse.Namespace) -> int:
     base = apply_sets(load_params(args.base) if args.base else DEFAULT_PARAMS, args.overrides)
     request = TuneRequest(logdir=args.logdir, config=config, base=base, store_path=_store_path(args),
                           holdout=args.holdout, folds=args.folds, resume=args.resume, timeout_s=args.timeout,
-                          max_ms=args.max_ms, workers=args.workers, ray_address=args.ray_address)
+                          max_ms=args.max_ms, workers=args.workers, ray_address=args.ray_address,
+                          safety=safety_frames if args.safety_sweep == "quick" else None)
 
     # Signal handlers only set the event; the study stops at the next result and
     # keeps every finished evaluation. A second Ctrl-C interrupts at once.
@@ -173,6 +193,9 @@ def run(args: argparse.Namespace) -> int:
     if "reference" in fitness.needs:
         print("measured against: " + "; ".join(f"{name}: {sources_text(sources)}"
                                                for name, sources in summary["references"].items() if sources))
+    if d.safety is not None:
+        print(f"safety sweep ({d.safety.frames} synthetic frames at the log's rig): read farther than the truth by "
+              f"more than 2 %: base {d.safety.base}, tuned {d.safety.tuned}")
     blocked, rejected = d.blocked, d.refused
     status = EXIT_ERROR if blocked or (rejected and args.out and not args.force) else 0
     if args.out and blocked is None:

@@ -27,12 +27,13 @@ def cli(*args, check=True):
 def _args(root, *extra, generations=12):
     """The paper's metric on all four frames (no held-out frame: the gate compares on the training frames).
 
-    ``--force``: these runs test the store, resume and report, not the gate (its own tests are below and in
-    test_farther.py). The gate refuses this run's file: the paper's MSE on the WLS map improves, the daemon's
-    branch distance on the same frames gets worse (safety-weighted 54 % -> 77 %), which is issue 12's point."""
+    ``--force`` and ``--safety-sweep none``: these runs test the store, resume and report, not the gate (its own
+    tests are below and in test_farther.py), and the sweep's 84 renders would add 13 s to each. The gate refuses
+    this run's file: the paper's MSE on the WLS map improves, the daemon's branch distance on the same frames
+    gets worse (safety-weighted 54 % -> 77 %), which is issue 12's point."""
     return ["tune", root / "s", "--base", root / "base.yaml", "--optimizer", "ga", "--metric", "mse",
             "--holdout", "none", "--population", "8", "--generations", str(generations), "--seed", "4",
-            "--workers", "2", "--no-progress", "--force", *extra]
+            "--workers", "2", "--no-progress", "--force", "--safety-sweep", "none", *extra]
 
 
 @pytest.fixture(scope="module")
@@ -243,6 +244,23 @@ def test_tune_refuses_a_better_map_that_ranges_worse(tiny_session, tmp_path):
     assert "safety-weighted branch-distance error on the 4 training frame(s)" in proc.stderr
     prov = read_provenance(tmp_path / "p.rejected.yaml")
     assert prov["fitness"] < prov["baseline_fitness"]       # it did beat the base on the fitness it was given
+
+
+def test_the_safety_sweep_runs_at_the_logs_rig_and_is_reported(tiny_session, tmp_path):
+    """A candidate that differs from its base is ranged on the quick sweep's 84 frames, rendered at this log's
+    256x192 rig; the counts are printed and in summary.json. --safety-sweep none skips it."""
+    args = ["tune", tiny_session / "s", "--base", tiny_session / "base.yaml", "--optimizer", "random",
+            "--population", "4", "--generations", "2", "--seed", "1", "--workers", "1", "--no-progress", "--force"]
+    proc = cli(*args, "--report", tmp_path / "rep", "--out", tmp_path / "p.yaml")
+    sweep = json.loads((tmp_path / "rep" / "summary.json").read_text())["selection"]["farther"]["safety_sweep"]
+    assert sweep["frames"] == 84
+    assert (f"safety sweep (84 synthetic frames at the log's rig): read farther than the truth by more than 2 %: "
+            f"base {sweep['base']}, tuned {sweep['tuned']}") in proc.stdout
+    # the tiny base reads some of them farther (its 48 disparities at f = 160 px: minimum range 0.21 m)
+    assert sweep["base"] > 0
+    skipped = cli(*args, "--report", tmp_path / "rep2", "--out", tmp_path / "q.yaml", "--safety-sweep", "none")
+    assert "safety sweep" not in skipped.stdout
+    assert json.loads((tmp_path / "rep2" / "summary.json").read_text())["selection"]["farther"]["safety_sweep"] is None
 
 
 @pytest.mark.skipif(os.geteuid() != 0, reason="giving a file to another owner needs root")
