@@ -29,6 +29,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -303,17 +304,24 @@ def tune(request: TuneRequest, hooks: Hooks = Hooks()) -> Decision:
                     blocked, kind, workers, points, safety)
 
 
+def _rig(frame: FrameData) -> tuple:
+    return frame.left.shape[:2], frame.focal_px, frame.baseline_m
+
+
 def safety_check(request: TuneRequest, chosen: StereoParams, train: FrameSet, hooks: Hooks) -> FartherCheck | None:
-    """The base and the chosen parameters on the safety sweep at the log's rig (the first training frame with a
-    calibration), as the daemon flies (objective.branch_distances): the frames each reads farther than the truth
+    """The base and the chosen parameters on the safety sweep at the log's rig (the image size, focal length and
+    baseline most of its calibrated training frames share; request.safety gets the first of them), as the daemon
+    flies (objective.branch_distances): the frames each reads farther than the truth
     by more than FARTHER_TOL_PCT, and the refusal when the chosen reads more. The count alone, not the error:
     synthetic scenes judge safety here, the log's own frames judge accuracy. None without a sweep, a calibrated
     frame, or a change to check."""
     if request.safety is None or chosen == request.base:
         return None
-    sample = next((f for f in train.frames if f.focal_px and f.baseline_m), None)
-    if sample is None:
+    calibrated = [f for f in train.frames if f.focal_px and f.baseline_m]
+    if not calibrated:
         return None
+    rigs = Counter(_rig(f) for f in calibrated)     # a log of mixed rigs: the one most of its frames come from
+    sample = next(f for f in calibrated if _rig(f) == rigs.most_common(1)[0][0])
     hooks.phase("the safety sweep: the base and the chosen parameters on synthetic branches from inside the "
                 "minimum range out to 3 m")
     frames = request.safety(sample)

@@ -98,3 +98,8 @@ def test_the_safety_sweep_refuses_a_candidate_that_reads_a_sweep_frame_farther()
     assert safety_check(request, flight, FrameSet("train", (frame,)), Hooks()) is None
     uncalibrated = FrameData("log/0", left, right)
     assert safety_check(request, tuned, FrameSet("train", (uncalibrated,)), Hooks()) is None
+    # a log of mixed rigs: the sweep is rendered at the rig most of its frames share, not its first frame's
+    other = FrameData("real/0", left[:370, :413], right[:370, :413], focal_px=1246.7, baseline_m=0.16)
+    seen.clear()
+    safety_check(request, tuned, FrameSet("train", (other, uncalibrated, frame, frame)), Hooks())
+    assert seen == [frame]
