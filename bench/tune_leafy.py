@@ -158,6 +158,10 @@ def main() -> int:
                                                         f"{far['cross_validated']['base']} -> "
                                                         f"{far['cross_validated']['tuned']} of "
                                                         f"{far['cross_validated']['frames']}"))
+    sweep = far.get("safety_sweep")
+    if sweep:
+        print(f"  safety sweep ({sweep['frames']} synthetic near-sweep frames at the log's rig): farther > 2 % base "
+              f"{sweep['base']} -> tuned {sweep['tuned']}")
     for f in sel.get("folds") or []:
         print(f"  fold {f['fold']}: {args.metric} train {f['base_train']:.3f} -> {f['winner_train']:.3f}, "
               f"held-out {f['base_holdout']:.3f} -> {f['winner_holdout']:.3f}")
