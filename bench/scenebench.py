@@ -25,7 +25,8 @@ from uav_depth.core.disparity import DisparityResult, flight_pipeline
 from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, load_params, read_provenance
 from uav_depth.daemon.mavlink_out import TOO_CLOSE, distance_report
 from uav_depth.daemon.ranging import Estimate, Ranger, RangingConfig
-from uav_depth.sim.scene import Scene, SceneConfig
+from uav_depth.sim.scene import SceneConfig
+from uav_depth.sim.sweep import render
 
 ROOT = Path(__file__).resolve().parents[1]
 FLIGHT_FILE = ROOT / "deploy" / "params-flight.yaml"
@@ -73,7 +74,7 @@ def render_cached(cfg: SceneConfig, cache: bool = True) -> Rendered:
         z = np.load(path)
         if "disp" in z.files:
             return Rendered(z["left"], z["right"], float(z["truth"]), float(z["any"]), float(z["target"]), z["disp"])
-    frame = Scene(cfg).render(rng=np.random.default_rng([cfg.seed, 0]))
+    frame = render(cfg)
     roi = cfg.center_roi
     t = frame.truth(roi)
     r = Rendered(frame.left, frame.right, t.significant_m, t.nearest_any_m, frame.nearest_branch_distance(roi),

@@ -16,6 +16,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from uav_depth.sim.frame import StereoFrame
 from uav_depth.sim.scene import Scene, SceneConfig, vary
 
 VARIANTS: dict[str, Callable[[float, int], SceneConfig]] = {
@@ -45,8 +46,14 @@ def quick_sweep(width: int | None = None, height: int | None = None, focal_px: f
                 yield f"{variant}-s{seed}-{d:.2f}m", at_rig(make(d, seed), *rig)
 
 
+def render(cfg: SceneConfig) -> StereoFrame:
+    """``cfg`` at the identity pose, its noise seeded by its seed: the same frame in every benchmark and in
+    tune's safety sweep."""
+    return Scene(cfg).render(rng=np.random.default_rng([cfg.seed, 0]))
+
+
 def render_with_truth(cfg: SceneConfig) -> tuple[np.ndarray, np.ndarray, float, tuple[int, int, int, int]]:
-    """(left, right, truth m, centre region px) of ``cfg`` at the identity pose, its noise seeded by its seed."""
-    frame = Scene(cfg).render(rng=np.random.default_rng([cfg.seed, 0]))
+    """(left, right, truth m, centre region px) of :func:`render` (``cfg``)."""
+    frame = render(cfg)
     roi = cfg.center_roi
     return frame.left, frame.right, float(frame.truth(roi).significant_m), roi
