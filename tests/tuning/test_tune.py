@@ -93,7 +93,7 @@ def test_the_safety_sweep_refuses_a_candidate_that_reads_a_sweep_frame_farther()
     assert (check.base, check.tuned, check.frames) == (0, 1, 1)
     assert check.reason == ("the tuned parameters read 1 of the 1 safety-sweep frame(s) farther than the truth by "
                             "more than 2 %, the base 0")
-    assert seen == [frame]                    # rendered at the rig of the log's first calibrated frame
+    assert seen == [frame]                    # rendered at the rig of the log's calibrated frames
     # nothing to check when the base is kept, or when no frame of the log has a calibration
     assert safety_check(request, flight, FrameSet("train", (frame,)), Hooks()) is None
     uncalibrated = FrameData("log/0", left, right)
