@@ -37,13 +37,13 @@ from pathlib import Path
 
 import numpy as np
 
+from leafy_compare import compare
 from leafy_suite import scene
-from scenebench import FLIGHT_FILE, Measurer, fmt_pct, rel_err, render_cached
+from scenebench import FLIGHT_FILE, fmt_pct, render_cached
 
 from uav_depth.cli.benchmark import machine_line
 from uav_depth.core.params import load_params
-from uav_depth.sim.scene import SceneConfig
-from uav_depth.tuning.metrics import FARTHER_TOL_PCT, branch_error, safe_branch_error
+from uav_depth.tuning.metrics import FARTHER_TOL_PCT
 
 #: Training scenes are drawn from this index on (the suite uses 0..N-1).
 TRAIN_FROM = 1000
@@ -67,16 +67,12 @@ def write_sessions(root: Path, n: int) -> Path:
 
 
 def measure(params_file: Path, scenes: int) -> dict:
-    meas = Measurer(load_params(params_file), SceneConfig())
-    errs, pct, safe = [], [], []
-    for i in range(scenes):
-        fr = render_cached(scene(i))
-        out = meas.measure(fr.left, fr.right)
-        errs.append(rel_err(out["reported_m"], fr.truth_m))
-        pct.append(branch_error(out["reported_m"], fr.truth_m))
-        safe.append(safe_branch_error(out["reported_m"], fr.truth_m))
+    """The leafy suite's scenes 0..``scenes``-1 as the daemon flies (bench/leafy_compare.py's per-scene rows)."""
+    rows = [r[str(params_file)] for r in compare([params_file], 0, scenes)]
+    errs = [r["err"] for r in rows]
     got = [abs(e) for e in errs if e is not None]
-    return {"mean_branch_err_pct": float(np.mean(pct)), "mean_safe_err_pct": float(np.mean(safe)),
+    return {"mean_branch_err_pct": float(np.mean([r["plain"] for r in rows])),
+            "mean_safe_err_pct": float(np.mean([r["safe"] for r in rows])),
             "farther_2pct": sum(e is not None and e > FARTHER_TOL_PCT / 100.0 for e in errs), "median_abs_err": float(np.median(got)) if got else None,
             "mean_abs_err": float(np.mean(got)) if got else None, "no_measurement": sum(e is None for e in errs),
             "farther_5pct": sum(e is not None and e > 0.05 for e in errs), "per_scene": errs}
