@@ -15,6 +15,7 @@ from uav_depth.core.errors import ConfigError
 from uav_depth.core.params import DEFAULT_PARAMS, load_params
 from uav_depth.daemon.ranging import OutlierGate, Ranger, _weighted_quantiles, default_roi, resolve_roi
 from uav_depth.sim.scene import Scene, SceneConfig
+from uav_depth.sim.sweep import render
 
 PARAMS = DEFAULT_PARAMS.replace(**{"sgbm.num_disparities": 64})
 
@@ -289,7 +290,7 @@ def test_the_baseline_never_reads_a_branch_inside_its_minimum_range_farther(dist
     from uav_depth.sim.scene import vary
 
     cfg = vary(SceneConfig(), np.random.default_rng([0, 101]), branch_distance_m=distance)
-    frame = Scene(cfg).render(rng=np.random.default_rng([cfg.seed, 0]))   # as bench/scenebench.py renders
+    frame = render(cfg)   # the near sweep's frame (bench/near_sweep.py)
     r = Ranger(RangingConfig(), cfg.calibration, cfg.center_roi, DEFAULT_PARAMS)
     m = r.measure(flight_pipeline(DEFAULT_PARAMS).run(frame.left, frame.right))
     assert m.too_close and not m.valid, m
@@ -430,7 +431,7 @@ def test_a_weak_twig_inside_the_minimum_range_is_too_close():
 
     flight = load_params(FLIGHT_FILE)
     cfg = SceneConfig.leafy(seed=0, branch_distance_m=0.32)
-    frame = Scene(cfg).render(rng=np.random.default_rng([cfg.seed, 0]))   # as bench/scenebench.py renders
+    frame = render(cfg)   # the near sweep's frame (bench/near_sweep.py)
     assert frame.truth(cfg.center_roi).significant_m < 0.279
     m = Ranger(RangingConfig(), cfg.calibration, cfg.center_roi, flight).measure(
         flight_pipeline(flight).run(frame.left, frame.right))
