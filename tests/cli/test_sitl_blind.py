@@ -116,6 +116,14 @@ def finish(proc, timeout=30):
     return out
 
 
+def exits_within(proc, timeout: float) -> str:
+    """The process's whole output once it exits; a test failure carrying what it printed if it does not."""
+    try:
+        return proc.communicate(timeout=timeout)[0]
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"uav-depth sitl did not exit within {timeout:g} s; it printed:\n{finish(proc)[-3000:]}")
+
+
 @pytest.mark.timeout(WITHHOLD_S + 150)
 def test_no_distance_until_the_autopilot_sends_its_pose(tmp_path):
     port = free_port()
@@ -159,7 +167,7 @@ def test_wait_limit_says_what_is_missing(tmp_path):
     proc = start(cfg, "--wait-s", "3")
     ap = Autopilot(port)
     try:
-        out = proc.communicate(timeout=60)[0]
+        out = exits_within(proc, 60)
     finally:
         finish(proc)
         ap.close()
@@ -177,7 +185,7 @@ def test_scripted_is_refused_toward_an_autopilot(tmp_path):
     proc = start(cfg, "--scripted")
     ap = Autopilot(port)
     try:
-        out = proc.communicate(timeout=60)[0]
+        out = exits_within(proc, 60)
     finally:
         finish(proc)
         ap.close()
