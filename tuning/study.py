@@ -419,12 +419,15 @@ def top_candidates(store: RunStore, fitness_name: str, n: int = SELECT_TOP) -> l
 def select(executor: Executor, fitness_name: str, base: StereoParams, base_train: float,
            candidates: Sequence[tuple[dict[str, Any], float]], have_holdout: bool, *,
            train_set: str = "train", holdout_set: str = "holdout",
-           nudge_keys: Sequence[str] | None = None) -> Selection:
+           nudge_keys: Sequence[str] | None = None,
+           screen: Callable[[dict[str, Any]], str | None] | None = None) -> Selection:
     """Score the base and ``candidates`` on the held-out frames; the best non-fragile one wins.
 
     Fragile: P1/P2 near the cost limit (:func:`fragile_reason`), or, with ``nudge_keys``, a one-step nudge of
     one of those keys on the training frames loses the candidate's whole gain over the base
-    (``robust.nudge_check``; checked only for a candidate about to win, then the next is tried).
+    (``robust.nudge_check``; checked only for a candidate about to win, then the next is tried). ``screen``:
+    another check of a candidate about to win that beats the base, returning why it may not (the tuner's
+    safety sweep, ``tune.SafetyScreen.reject``) or None; a rejected one is set aside the same way.
     Without held-out frames the choice falls back to the training value (reports say so).
     Ties keep the earlier row (the base first, then the better training value).
     """
@@ -454,6 +457,11 @@ def select(executor: Executor, fitness_name: str, base: StereoParams, base_train
             r["nudges"] = check.values
             if check.reason is not None:
                 r["fragile"] = check.reason
+                continue
+        if screen is not None and r[f"{on}_utility"] > rows[0][f"{on}_utility"]:
+            why = screen(r["params"])
+            if why is not None:
+                r["fragile"] = why
                 continue
         winner = i
         break

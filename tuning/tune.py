@@ -20,7 +20,9 @@ in order for one request and says whether the result may be written (:attr:`Deci
 - on the safety sweep (``TuneRequest.safety``: synthetic frames the caller renders at the log's rig, from
   inside the minimum range out to the working distance), it reads no more frames farther than the truth than
   the base does: a log holds few frames near the minimum range or with twigs in front, and those are where a
-  tuned matcher goes wrong unseen (a file this gate wrote sent a branch inside the minimum range as a distance);
+  tuned matcher goes wrong unseen (a file this gate wrote sent a branch inside the minimum range as a distance).
+  The sweep also screens the held-out choice (:class:`SafetyScreen`): a candidate about to win that reads more
+  sweep frames farther is set aside and the next best tried, so an unsafe best does not cost a safe runner-up;
 - with ``max_ms``, some evaluated candidate runs within the frame-time budget (else :attr:`Decision.blocked`).
 """
 
@@ -224,6 +226,7 @@ def tune(request: TuneRequest, hooks: Hooks = Hooks()) -> Decision:
     tuned_keys = [d["key"] for d in describe_space(make_space(config.optimizer, config.keys))["dims"]]
     direction = "minimize" if fitness.direction < 0 else "maximize"
     stores = [RunStore(request.store_path, direction, tuned_keys, study_name=fold_study_name(j)) for j in range(k)]
+    screen = SafetyScreen(request, framesets["train"], hooks)
     try:
         executor = make_executor(framesets, metric, request.workers, request.ray_address)
         try:
@@ -257,7 +260,8 @@ def tune(request: TuneRequest, hooks: Hooks = Hooks()) -> Decision:
                             if len(ho) else "choosing among the best candidates on the training frames")
                 selections.append(select(hooks.count(executor, "candidates scored"), metric, request.base,
                                          result_j.baseline.value, candidates, bool(len(ho)), train_set=tn,
-                                         holdout_set=hn, nudge_keys=tuned_keys))
+                                         holdout_set=hn, nudge_keys=tuned_keys,
+                                         screen=screen.reject if screen.active else None))
             cross = None
             if k > 1:
                 hooks.phase(f"scoring the {k} fold winners on every fold's held-out sessions")
@@ -294,7 +298,7 @@ def tune(request: TuneRequest, hooks: Hooks = Hooks()) -> Decision:
         f" (fold {cross.pool[cross.winner]['fold'] + 1}'s own)" if cross is not None and cross.winner is not None
         else "")
     farther = farther_check([scores[(0, n)] for n in own], [scores[(1, n)] for n in own], where)
-    safety = safety_check(request, chosen, framesets["train"], hooks)
+    safety = screen.check(chosen)
     beats = selection.beats_base and (cross is None or fitness.utility(cross.cv_tuned) > fitness.utility(cross.cv_base))
     blocked = f"--max-ms: {budget['reason']}" if budget and budget["reason"] else None
     refused = None if blocked else _refusal(metric, k, selection, cross, folds[0][1], beats, farther, cv_farther,
@@ -308,29 +312,67 @@ def _rig(frame: FrameData) -> tuple:
     return frame.left.shape[:2], frame.focal_px, frame.baseline_m
 
 
+class SafetyScreen:
+    """The safety sweep (``TuneRequest.safety``) at the log's rig: the image size, focal length and baseline most
+    of its calibrated training frames share (``request.safety`` gets the first of them). Rendered once, when first
+    needed; each parameter set read on it once, as the daemon flies (objective.branch_distances).
+
+    :meth:`reject` is the held-out choice's screen (study.select): a candidate about to win that reads more sweep
+    frames farther than the truth than the base does is set aside and the next one tried, so a tune ships the
+    best safe candidate instead of refusing the best one. :meth:`check` is the gate's count for the chosen
+    parameters. The count alone, not the error: synthetic scenes judge safety here, the log's own frames judge
+    accuracy. Inactive (reject None, check None) without a sweep or a calibrated training frame."""
+
+    def __init__(self, request: TuneRequest, train: FrameSet, hooks: Hooks):
+        self.request, self.hooks = request, hooks
+        calibrated = [f for f in train.frames if f.focal_px and f.baseline_m] if request.safety is not None else []
+        rigs = Counter(_rig(f) for f in calibrated)     # a log of mixed rigs: the one most of its frames come from
+        self.sample = (next(f for f in calibrated if _rig(f) == rigs.most_common(1)[0][0]) if calibrated
+                       else None)
+        self._frames: FrameSet | None = None
+        self._counts: dict[str, int] = {}
+
+    @property
+    def active(self) -> bool:
+        return self.sample is not None
+
+    def _sweep(self) -> FrameSet:
+        if self._frames is None:
+            self.hooks.phase("the safety sweep: the base and each candidate about to win on synthetic branches from "
+                             "inside the minimum range out to 3 m")
+            self._frames = self.request.safety(self.sample)
+        return self._frames
+
+    def count(self, params: StereoParams) -> int:
+        """How many sweep frames ``params`` reads farther than the truth by more than FARTHER_TOL_PCT."""
+        key = repr(sorted(params.to_dict().items()))
+        if key not in self._counts:
+            frames = self._sweep()
+            truths = [f.branch_distance_m for f in frames.frames]
+            self._counts[key] = sum(is_farther(d, t) for d, t in zip(branch_distances(params, frames), truths))
+        return self._counts[key]
+
+    def reject(self, params_dict: dict[str, Any]) -> str | None:
+        """Why a candidate may not win (it reads more sweep frames farther than the base), or None."""
+        nb, nt = self.count(self.request.base), self.count(params_from_dict(params_dict))
+        return None if nt <= nb else (f"unsafe: reads {nt} of the {len(self._sweep())} safety-sweep frame(s) farther "
+                                      f"than the truth by more than {FARTHER_TOL_PCT:g} %, the base {nb}")
+
+    def check(self, chosen: StereoParams) -> FartherCheck | None:
+        """The base's and the chosen parameters' counts and the gate's refusal when the chosen reads more; None
+        when inactive or when the base is kept (nothing to check)."""
+        if not self.active or chosen == self.request.base:
+            return None
+        nb, nt = self.count(self.request.base), self.count(chosen)
+        reason = None if nt <= nb else (f"the tuned parameters read {nt} of the {len(self._sweep())} safety-sweep "
+                                        f"frame(s) farther than the truth by more than {FARTHER_TOL_PCT:g} %, the base "
+                                        f"{nb}")
+        return FartherCheck(nb, nt, len(self._sweep()), reason)
+
+
 def safety_check(request: TuneRequest, chosen: StereoParams, train: FrameSet, hooks: Hooks) -> FartherCheck | None:
-    """The base and the chosen parameters on the safety sweep at the log's rig (the image size, focal length and
-    baseline most of its calibrated training frames share; request.safety gets the first of them), as the daemon
-    flies (objective.branch_distances): the frames each reads farther than the truth
-    by more than FARTHER_TOL_PCT, and the refusal when the chosen reads more. The count alone, not the error:
-    synthetic scenes judge safety here, the log's own frames judge accuracy. None without a sweep, a calibrated
-    frame, or a change to check."""
-    if request.safety is None or chosen == request.base:
-        return None
-    calibrated = [f for f in train.frames if f.focal_px and f.baseline_m]
-    if not calibrated:
-        return None
-    rigs = Counter(_rig(f) for f in calibrated)     # a log of mixed rigs: the one most of its frames come from
-    sample = next(f for f in calibrated if _rig(f) == rigs.most_common(1)[0][0])
-    hooks.phase("the safety sweep: the base and the chosen parameters on synthetic branches from inside the "
-                "minimum range out to 3 m")
-    frames = request.safety(sample)
-    truths = [f.branch_distance_m for f in frames.frames]
-    nb, nt = (sum(is_farther(d, t) for d, t in zip(branch_distances(p, frames), truths))
-              for p in (request.base, chosen))
-    reason = None if nt <= nb else (f"the tuned parameters read {nt} of the {len(frames)} safety-sweep frame(s) "
-                                    f"farther than the truth by more than {FARTHER_TOL_PCT:g} %, the base {nb}")
-    return FartherCheck(nb, nt, len(frames), reason)
+    """The gate's safety-sweep count for ``chosen`` alone (:meth:`SafetyScreen.check`)."""
+    return SafetyScreen(request, train, hooks).check(chosen)
 
 
 def _pooled_selection(fitness, base: StereoParams, result: StudyResult, selections: list[Selection],

@@ -69,9 +69,10 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-ms", type=float, default=None,
                    help="choose the best candidate whose frame time (re-timed here) is at most this")
     p.add_argument("--safety-sweep", choices=("quick", "none"), default="quick",
-                   help="quick (default): before writing, check the chosen parameters on synthetic branches from "
-                        "inside the minimum range out to 3 m (84 frames rendered at the log's rig) and refuse them "
-                        "when they read more of those frames farther than the truth than the base does; none: skip")
+                   help="quick (default): read each candidate about to win on synthetic branches from inside the "
+                        "minimum range out to 3 m (84 frames rendered at the log's rig), set it aside when it reads "
+                        "more of those frames farther than the truth than the base does, and refuse to write such a "
+                        "choice; none: skip")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 

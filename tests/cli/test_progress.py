@@ -182,8 +182,8 @@ def test_tune_announces_every_phase_after_its_bar(tiny_session, tmp_path):
     assert phases == ["loading the tuner ...", f"loading the frames of {tiny_session / 's'} ...",
                       "choosing among the best candidates on the 2 held-out frame(s) ...",
                       "scoring the base and the chosen parameters with every metric on train and holdout ...",
-                      "the safety sweep: the base and the chosen parameters on synthetic branches from inside the "
-                      "minimum range out to 3 m ...",
+                      "the safety sweep: the base and each candidate about to win on synthetic branches from inside "
+                      "the minimum range out to 3 m ...",
                       f"writing the report and its plots into {rep} ..."]
 
 

@@ -61,6 +61,26 @@ def test_a_candidate_on_a_cliff_loses_to_the_next_one():
     assert ("train", 5500) in ex.calls and ("holdout", 5500) not in ex.calls   # nudges on the training frames
 
 
+def test_a_screened_candidate_is_set_aside_for_the_next_one_that_beats_the_base():
+    """The tuner's safety sweep screens the held-out choice: the best held-out candidate (p2 5000) is refused by
+    the screen, the runner-up (p2 3000) wins; a candidate that does not beat the base is never screened."""
+    def fn(frameset, sg):
+        return {2400: 2.0, 5000: 1.0, 3000: 1.5, 2600: 2.5}[sg["p2"]]
+    asked = []
+
+    def screen(params):
+        asked.append(params["sgbm"]["p2"])
+        return "unsafe: reads 1 of the 84 safety-sweep frame(s) farther" if params["sgbm"]["p2"] == 5000 else None
+    cands = [(_with(600, 5000), 1.0), (_with(600, 3000), 1.5), (_with(600, 2600), 2.5)]
+    sel = select(Scripted(fn), "flown", DEFAULT_PARAMS, 2.0, cands, True, screen=screen)
+    assert sel.chosen["params"]["sgbm"]["p2"] == 3000 and sel.beats_base
+    assert sel.rows[1]["fragile"].startswith("unsafe: reads 1 of the 84")
+    assert asked == [5000, 3000]
+    # every candidate that beats the base refused: the best of the rest wins, which does not beat the base
+    sel = select(Scripted(fn), "flown", DEFAULT_PARAMS, 2.0, cands, True, screen=lambda params: "unsafe")
+    assert sel.chosen["params"]["sgbm"]["p2"] == 2600 and not sel.beats_base
+
+
 def test_nudges_step_each_key_and_stay_on_the_schema():
     p = DEFAULT_PARAMS.replace(**{"sgbm.block_size": 3, "sgbm.p1": 100, "sgbm.p2": 101})
     labels = dict(nudges(p, ("sgbm.p1", "sgbm.p2", "sgbm.block_size", "sgbm.uniqueness_ratio", "wls.lambda")))
