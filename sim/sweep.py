@@ -1,7 +1,7 @@
 """Near sweeps: one branch placed at a list of distances, from inside a rig's minimum range to its working
 distance, in three scene variants. ``bench/near_sweep.py`` measures both parameter files on them, and
-``uav-depth tune`` checks a candidate on the quick sweep before writing it (its safety sweep), at the rig of
-the log it tuned on.
+``uav-depth tune`` checks candidates on one (:data:`SWEEPS`, its safety sweep) at the rig of the log it tuned
+on.
 
 Variants: ``plain`` (issue 11's reproduction: a 3 cm branch), ``varied`` (:func:`~uav_depth.sim.scene.vary`:
 imaging conditions and geometry drawn per seed) and ``leafy`` (``SceneConfig.leafy``: twigs, needles and a small
@@ -27,6 +27,13 @@ VARIANTS: dict[str, Callable[[float, int], SceneConfig]] = {
 #: The quick sweep: inside the minimum range of both shipped files (0.05-0.27 m), across it, and out to 3 m.
 QUICK_DISTANCES = (0.05, 0.10, 0.15, 0.20, 0.25, 0.27, 0.29, 0.32, 0.40, 0.60, 1.00, 1.50, 2.00, 3.00)
 QUICK_SEEDS = (0, 1)
+#: The safety sweep ``uav-depth tune`` checks candidates on by default: the quick sweep's distances inside and
+#: across the minimum range, then every 20 cm from 0.4 to 3 m (where twigs in front are read farther), five seeds
+#: the benchmarks do not use (bench/near_sweep.py: 0-9), so the near sweep stays a check the tuner never saw.
+#: 330 frames: on the quick sweep's 84, a candidate that read 104 leafy frames of the 1 cm near sweep farther
+#: (the flight file 60) read as many as the flight file, and the tuner wrote it (docs/tuning.md).
+SAFETY_DISTANCES = QUICK_DISTANCES[:8] + tuple(round(0.4 + 0.2 * i, 2) for i in range(14))
+SAFETY_SEEDS = (10, 11, 12, 13, 14)
 
 
 def at_rig(cfg: SceneConfig, width: int, height: int, focal_px: float, baseline_m: float) -> SceneConfig:
@@ -34,16 +41,33 @@ def at_rig(cfg: SceneConfig, width: int, height: int, focal_px: float, baseline_
     return replace(cfg, width=int(width), height=int(height), focal_px=float(focal_px), baseline_m=float(baseline_m))
 
 
-def quick_sweep(width: int | None = None, height: int | None = None, focal_px: float | None = None,
-                baseline_m: float | None = None) -> Iterator[tuple[str, SceneConfig]]:
-    """(key, scene) of the quick sweep, at the given rig (each value defaults to SceneConfig's)."""
+def sweep_at(distances: tuple[float, ...], seeds: tuple[int, ...], width: int | None = None,
+             height: int | None = None, focal_px: float | None = None,
+             baseline_m: float | None = None) -> Iterator[tuple[str, SceneConfig]]:
+    """(key, scene) of every variant, seed and distance, at the given rig (each value defaults to SceneConfig's)."""
     default = SceneConfig()
     rig = (width or default.width, height or default.height, focal_px or default.focal_px,
            baseline_m or default.baseline_m)
     for variant, make in VARIANTS.items():
-        for seed in QUICK_SEEDS:
-            for d in QUICK_DISTANCES:
+        for seed in seeds:
+            for d in distances:
                 yield f"{variant}-s{seed}-{d:.2f}m", at_rig(make(d, seed), *rig)
+
+
+def quick_sweep(width: int | None = None, height: int | None = None, focal_px: float | None = None,
+                baseline_m: float | None = None) -> Iterator[tuple[str, SceneConfig]]:
+    """(key, scene) of the quick sweep (QUICK_DISTANCES x QUICK_SEEDS, 84 frames) at the given rig."""
+    return sweep_at(QUICK_DISTANCES, QUICK_SEEDS, width, height, focal_px, baseline_m)
+
+
+def safety_sweep(width: int | None = None, height: int | None = None, focal_px: float | None = None,
+                 baseline_m: float | None = None) -> Iterator[tuple[str, SceneConfig]]:
+    """(key, scene) of the safety sweep (SAFETY_DISTANCES x SAFETY_SEEDS, 330 frames) at the given rig."""
+    return sweep_at(SAFETY_DISTANCES, SAFETY_SEEDS, width, height, focal_px, baseline_m)
+
+
+#: The sweeps ``uav-depth tune --safety-sweep`` offers, by name.
+SWEEPS = {"standard": safety_sweep, "quick": quick_sweep}
 
 
 def render(cfg: SceneConfig) -> StereoFrame:

@@ -218,7 +218,8 @@ class FartherCheck:
     """What the daemon would fly, base against candidate, on the same ``frames`` frames with branch truth:
     ``base``/``tuned``, the frames read farther than the truth by more than FARTHER_TOL_PCT;
     ``base_safe``/``tuned_safe``, the mean safety-weighted branch-distance error (%, metrics.safe_branch_error;
-    None without such frames). ``reason``: the gate's one line when refused, else None."""
+    None without such frames). ``base_median``/``tuned_median`` (the safety sweep's only): the median absolute
+    branch-distance error (%) over the frames both read. ``reason``: the gate's one line when refused, else None."""
 
     base: int
     tuned: int
@@ -226,6 +227,8 @@ class FartherCheck:
     reason: str | None
     base_safe: float | None = None
     tuned_safe: float | None = None
+    base_median: float | None = None
+    tuned_median: float | None = None
 
 
 def count_farther(evaluations: Sequence[Evaluation]) -> tuple[int, int]:

@@ -68,11 +68,11 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="continue the run held in the store (more --generations or --runs extend it)")
     p.add_argument("--max-ms", type=float, default=None,
                    help="choose the best candidate whose frame time (re-timed here) is at most this")
-    p.add_argument("--safety-sweep", choices=("quick", "none"), default="quick",
-                   help="quick (default): read each candidate about to win on synthetic branches from inside the "
-                        "minimum range out to 3 m (84 frames rendered at the log's rig), set it aside when it reads "
+    p.add_argument("--safety-sweep", choices=("standard", "quick", "none"), default="standard",
+                   help="standard (default): read each candidate about to win on synthetic branches from inside the "
+                        "minimum range out to 3 m (330 frames rendered at the log's rig), set it aside when it reads "
                         "more of those frames farther than the truth than the base does, and refuse to write such a "
-                        "choice; none: skip")
+                        "choice; quick: 84 frames (weaker: for trying things out); none: skip")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -90,15 +90,15 @@ def rejected_path(out: str) -> str:
     return f"{root}.rejected{ext or '.yaml'}"
 
 
-def safety_frames(sample):
-    """The quick near sweep (uav_depth.sim.sweep) rendered at the rig of ``sample`` (a FrameData of the log):
+def safety_frames(sample, sweep: str = "standard"):
+    """The named sweep of uav_depth.sim.sweep (SWEEPS) rendered at the rig of ``sample`` (a FrameData of the log):
     its image size, focal length and baseline; each frame knows the nearest significant object's distance."""
-    from uav_depth.sim.sweep import quick_sweep, render_with_truth
+    from uav_depth.sim.sweep import SWEEPS, render_with_truth
     from uav_depth.tuning.frames import FrameData, FrameSet
 
     h, w = sample.left.shape[:2]
     frames = []
-    for key, cfg in quick_sweep(w, h, sample.focal_px, sample.baseline_m):
+    for key, cfg in SWEEPS[sweep](w, h, sample.focal_px, sample.baseline_m):
         left, right, truth_m, roi = render_with_truth(cfg)
         frames.append(FrameData(f"safety/{key}", left, right, branch_distance_m=truth_m, roi=roi,
                                 focal_px=cfg.focal_px, baseline_m=cfg.baseline_m, reference_source="synthetic"))
@@ -111,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
     terminal = Progress(enabled=False if args.no_progress else None)   # the phases outside the bar
     terminal.phase("loading the tuner")     # its imports take seconds on a small machine
     import datetime
+    import functools
     import math
     import signal
     import sys
@@ -136,7 +137,8 @@ def run(args: argparse.Namespace) -> int:
     request = TuneRequest(logdir=args.logdir, config=config, base=base, store_path=_store_path(args),
                           holdout=args.holdout, folds=args.folds, resume=args.resume, timeout_s=args.timeout,
                           max_ms=args.max_ms, workers=args.workers, ray_address=args.ray_address,
-                          safety=safety_frames if args.safety_sweep == "quick" else None)
+                          safety=(None if args.safety_sweep == "none" else
+                                  functools.partial(safety_frames, sweep=args.safety_sweep)))
 
     # Signal handlers only set the event; the study stops at the next result and
     # keeps every finished evaluation. A second Ctrl-C interrupts at once.

@@ -173,7 +173,8 @@ def test_tune_announces_every_phase_after_its_bar(tiny_session, tmp_path):
     rep = tmp_path / "rep"
     code, lines = on_a_terminal(["tune", tiny_session / "s", "--base", tiny_session / "base.yaml", "--optimizer",
                                  "random", "--population", "2", "--generations", "1", "--holdout", "0.5",
-                                 "--workers", "1", "--store", tmp_path / "store.sqlite", "--report", rep])
+                                 "--workers", "1", "--store", tmp_path / "store.sqlite", "--report", rep,
+                                 "--safety-sweep", "quick"])
     assert code in (0, 1)       # whether the random candidates beat the base is not the point here
     phases = [line for line in lines if line.endswith(" ...") and "|" not in line]
     # each evaluation after the bar is counted: the held-out choice, then base and chosen on train and holdout
@@ -190,5 +191,5 @@ def test_tune_announces_every_phase_after_its_bar(tiny_session, tmp_path):
 def test_tune_no_progress_silences_its_phases(tiny_session, tmp_path):
     _, lines = on_a_terminal(["tune", tiny_session / "s", "--base", tiny_session / "base.yaml", "--optimizer",
                               "random", "--population", "2", "--generations", "1", "--holdout", "none", "--workers",
-                              "1", "--store", tmp_path / "store.sqlite", "--no-progress"])
+                              "1", "--store", tmp_path / "store.sqlite", "--no-progress", "--safety-sweep", "quick"])
     assert [line for line in lines if line.endswith(" ...")] == []

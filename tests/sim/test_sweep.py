@@ -5,7 +5,8 @@ from __future__ import annotations
 import math
 
 from uav_depth.sim.scene import SceneConfig
-from uav_depth.sim.sweep import QUICK_DISTANCES, QUICK_SEEDS, VARIANTS, at_rig, quick_sweep, render_with_truth
+from uav_depth.sim.sweep import (QUICK_DISTANCES, QUICK_SEEDS, SAFETY_DISTANCES, SAFETY_SEEDS, SWEEPS, VARIANTS,
+                                 at_rig, quick_sweep, render_with_truth, safety_sweep)
 
 
 def test_the_quick_sweep_covers_every_variant_seed_and_distance_once_at_the_rig_asked():
@@ -16,6 +17,21 @@ def test_the_quick_sweep_covers_every_variant_seed_and_distance_once_at_the_rig_
     assert {c.branch_distance_m for _, c in scenes} == set(QUICK_DISTANCES)
     default = dict(quick_sweep())["plain-s0-1.00m"]
     assert (default.width, default.focal_px) == (SceneConfig().width, SceneConfig().focal_px)
+
+
+def test_the_safety_sweep_reaches_across_the_working_range_on_seeds_the_benchmarks_do_not_use():
+    """tune's default sweep: inside and across the minimum range as the quick sweep, then every 20 cm to 3 m;
+    seeds 10-14, none of bench/near_sweep.py's 0-9, so the near sweep stays a check the tuner never saw."""
+    scenes = list(safety_sweep(640, 360, 350.0, 0.12))
+    assert len(scenes) == len({k for k, _ in scenes}) == 330
+    dists = sorted({c.branch_distance_m for _, c in scenes})
+    assert dists[:8] == sorted(QUICK_DISTANCES[:8]) and max(dists) == 3.0
+    assert [round(b - a, 2) for a, b in zip(dists[8:], dists[9:])] == [0.2] * 13
+    assert set(SAFETY_SEEDS).isdisjoint(range(10))
+    assert {k.split("-")[1] for k, _ in scenes} == {f"s{seed}" for seed in SAFETY_SEEDS}
+    assert {c.seed for k, c in scenes if k.startswith("leafy")} == set(SAFETY_SEEDS)
+    assert all((c.width, c.focal_px) == (640, 350.0) for _, c in scenes)
+    assert set(SWEEPS) == {"standard", "quick"} and len(SAFETY_DISTANCES) == 22
 
 
 def test_at_rig_keeps_the_scene_in_metres():

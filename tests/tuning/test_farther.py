@@ -113,7 +113,7 @@ def test_tune_refuses_a_candidate_that_reads_more_held_out_frames_farther_than_i
     out = tmp_path / "p.yaml"
     args = ["tune", root / "s", "--base", tmp_path / "base.yaml", "--optimizer", "ga", "--metric", "mse",
             "--population", "8", "--generations", "4", "--seed", "2", "--holdout", "s/000002,s/000003",
-            "--workers", "1", "--no-progress", "--out", out]
+            "--workers", "1", "--no-progress", "--out", out, "--safety-sweep", "none"]   # the held-out rule alone
     first = cli(*args, "--store", tmp_path / "a.sqlite")
     assert "farther" not in first.stderr, first.stderr     # the truths as rendered: no farther reading
     candidate = tmp_path / ("p.yaml" if first.returncode == 0 else "p.rejected.yaml")

@@ -183,7 +183,7 @@ def test_bad_arguments_are_one_line_config_errors(tiny_session, tmp_path, extra,
 def test_default_tune_flies_chooses_on_held_out_frames_and_reports_benchmark_metrics(tiny_session, tmp_path):
     proc = cli("tune", tiny_session / "s", "--base", tiny_session / "base.yaml", "--population", "6",
                "--generations", "3", "--workers", "1", "--report", tmp_path / "rep", "--out", tmp_path / "p.yaml",
-               "--no-progress", "--force")
+               "--no-progress", "--force", "--safety-sweep", "quick")   # the standard sweep's 330 frames: for time
     summary = json.loads((tmp_path / "rep" / "summary.json").read_text())
     assert summary["config"]["metric"] == "flown" and summary["config"]["optimizer"] == "tpe"
     assert summary["convention"] == "bench"
@@ -205,7 +205,7 @@ def test_set_changes_the_base_the_search_starts_from_and_keeps(tiny_session, tmp
     cli("tune", tiny_session / "s", "--base", tiny_session / "base.yaml", "--set", "sgbm.num_disparities=32",
         "--optimizer", "random", "--keys", "sgbm.uniqueness_ratio", "--population", "2", "--generations", "1",
         "--workers", "1", "--no-progress", "--force", "--store", tmp_path / "s.sqlite", "--out", out,
-        "--report", tmp_path / "rep")
+        "--report", tmp_path / "rep", "--safety-sweep", "quick")
     assert load_params(tiny_session / "base.yaml").sgbm.num_disparities == 48
     assert load_params(out).sgbm.num_disparities == 32          # an untuned key comes from the changed base
     summary = json.loads((tmp_path / "rep" / "summary.json").read_text())
@@ -221,7 +221,7 @@ def test_tune_refuses_to_write_a_worse_file_and_keeps_the_candidate_beside_it(ti
     # frames (12.18 vs 11.96; seed 3 drew one 0.01 better once the confidence weighed matched neighbours only)
     args = ["tune", tiny_session / "s", "--base", good, "--optimizer", "random", "--population", "2",
             "--generations", "1", "--seed", "5", "--workers", "1", "--keys", "sgbm.uniqueness_ratio",
-            "--no-progress", "--out", out]
+            "--no-progress", "--out", out, "--safety-sweep", "quick"]   # 84 sweep frames, not 330: for time
     proc = cli(*args, "--store", tmp_path / "a.sqlite", check=False)
     assert proc.returncode == 1, proc.stdout
     assert "not written: the tuned parameters do not beat the base on the 2 held-out frame(s)" in proc.stderr
@@ -247,11 +247,12 @@ def test_tune_refuses_a_better_map_that_ranges_worse(tiny_session, tmp_path):
 
 
 def test_the_safety_sweep_runs_at_the_logs_rig_and_is_reported(tiny_session, tmp_path):
-    """A candidate that differs from its base is ranged on the quick sweep's 84 frames, rendered at this log's
-    256x192 rig; the counts are printed and in summary.json. --safety-sweep none skips it."""
+    """A candidate that differs from its base is ranged on the quick sweep's 84 frames (``--safety-sweep quick``;
+    the default is the 330-frame standard sweep, tests/sim/test_sweep.py), rendered at this log's 256x192 rig; the
+    counts are printed and in summary.json. --safety-sweep none skips it."""
     args = ["tune", tiny_session / "s", "--base", tiny_session / "base.yaml", "--optimizer", "random",
             "--population", "4", "--generations", "2", "--seed", "1", "--workers", "1", "--no-progress", "--force"]
-    proc = cli(*args, "--report", tmp_path / "rep", "--out", tmp_path / "p.yaml")
+    proc = cli(*args, "--report", tmp_path / "rep", "--out", tmp_path / "p.yaml", "--safety-sweep", "quick")
     sweep = json.loads((tmp_path / "rep" / "summary.json").read_text())["selection"]["farther"]["safety_sweep"]
     assert sweep["frames"] == 84
     assert (f"safety sweep (84 synthetic frames at the log's rig): read farther than the truth by more than 2 %: "
@@ -261,6 +262,14 @@ def test_the_safety_sweep_runs_at_the_logs_rig_and_is_reported(tiny_session, tmp
     skipped = cli(*args, "--report", tmp_path / "rep2", "--out", tmp_path / "q.yaml", "--safety-sweep", "none")
     assert "safety sweep" not in skipped.stdout
     assert json.loads((tmp_path / "rep2" / "summary.json").read_text())["selection"]["farther"]["safety_sweep"] is None
+
+
+def test_the_default_safety_sweep_is_the_standard_one():
+    """A plain ``tune`` checks its candidates on the 330-frame sweep; the 84-frame quick one let through a
+    candidate that reads 104 leafy frames of the 1 cm near sweep farther than 2 %, the flight file 60."""
+    from uav_depth.cli.main import build_parser
+
+    assert build_parser().parse_args(["tune", "logs"]).safety_sweep == "standard"
 
 
 @pytest.mark.skipif(os.geteuid() != 0, reason="giving a file to another owner needs root")
@@ -274,7 +283,7 @@ def test_tune_keeps_owner_and_mode_of_an_existing_out_file(tiny_session, tmp_pat
     os.chmod(out, 0o640)
     cli("tune", tiny_session / "s", "--base", tiny_session / "base.yaml", "--optimizer", "random",
         "--population", "2", "--generations", "1", "--workers", "1", "--no-progress", "--force",
-        "--store", tmp_path / "s.sqlite", "--out", out)
+        "--store", tmp_path / "s.sqlite", "--out", out, "--safety-sweep", "quick")
     st = out.stat()
     assert (st.st_uid, st.st_gid, st.st_mode & 0o7777) == (nobody.pw_uid, nobody.pw_gid, 0o640)
     assert read_provenance(out)["tool"] == "uav-depth tune"
