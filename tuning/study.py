@@ -427,7 +427,7 @@ def select(executor: Executor, fitness_name: str, base: StereoParams, base_train
     one of those keys on the training frames loses the candidate's whole gain over the base
     (``robust.nudge_check``; checked only for a candidate about to win, then the next is tried). ``screen``:
     another check of a candidate about to win that beats the base, returning why it may not (the tuner's
-    safety sweep, ``tune.SafetyScreen.reject``) or None; a rejected one is set aside the same way.
+    safety sweep, ``safety.SafetyScreen.reject``) or None; a rejected one is set aside the same way.
     Without held-out frames the choice falls back to the training value (reports say so).
     Ties keep the earlier row (the base first, then the better training value).
     """

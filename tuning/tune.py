@@ -29,10 +29,8 @@ in order for one request and says whether the result may be written (:attr:`Deci
 from __future__ import annotations
 
 import math
-import statistics
 import threading
 import time
-from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -42,11 +40,11 @@ from uav_depth.core.session import find_sessions
 
 from uav_depth.tuning.executor import Executor, make_executor, run_all
 from uav_depth.tuning.frames import FrameData, FrameSet, load_folds, load_split
-from uav_depth.tuning.metrics import FARTHER_TOL_PCT, branch_signed, is_farther
-from uav_depth.tuning.objective import FITNESS, FLOWN_FITNESS, Task, branch_distances, default_convention
+from uav_depth.tuning.objective import FITNESS, FLOWN_FITNESS, Task, default_convention
 from uav_depth.tuning.optimizers import make_space
 from uav_depth.tuning.report import comparison
 from uav_depth.tuning.robust import CrossSelection, FartherCheck, cross_select, farther_check, parse_folds
+from uav_depth.tuning.safety import UNSAFE, SafetyScreen
 from uav_depth.tuning.space import describe_space, parse_keys
 from uav_depth.tuning.store import RunStore, fold_study_name
 from uav_depth.tuning.study import (Selection, Study, StudyConfig, StudyResult, choose_under_budget, full_scores,
@@ -230,7 +228,7 @@ def tune(request: TuneRequest, hooks: Hooks = Hooks()) -> Decision:
     tuned_keys = [d["key"] for d in describe_space(make_space(config.optimizer, config.keys))["dims"]]
     direction = "minimize" if fitness.direction < 0 else "maximize"
     stores = [RunStore(request.store_path, direction, tuned_keys, study_name=fold_study_name(j)) for j in range(k)]
-    screen = SafetyScreen(request, framesets["train"], hooks)
+    screen = _screen(request, framesets["train"], hooks)
     try:
         executor = make_executor(framesets, metric, request.workers, request.ray_address)
         try:
@@ -313,97 +311,13 @@ def tune(request: TuneRequest, hooks: Hooks = Hooks()) -> Decision:
                     blocked, kind, workers, points, safety)
 
 
-def _rig(frame: FrameData) -> tuple:
-    return frame.left.shape[:2], frame.focal_px, frame.baseline_m
-
-
-#: The safety sweep's accuracy rule: a candidate's median absolute branch-distance error over the sweep frames
-#: it and the base both read may be at most SWEEP_MEDIAN_FACTOR x the base's + SWEEP_MEDIAN_SLACK_PCT points (the
-#: slack: a base that reads a few frames almost exactly must not refuse every change). Measured (2026-12-05, the
-#: 330-frame sweep at 1280x720): the flight file 1.15 %, three files tuned on leafy scenes 1.56-1.58 % (the plain
-#: 3 cm branch 2.2-3.1 % against 1.34 %), which the farther count alone let through.
-SWEEP_MEDIAN_FACTOR = 1.1
-SWEEP_MEDIAN_SLACK_PCT = 0.25
-#: How a candidate the safety sweep set aside is marked in the choice's rows (and so in the report).
-UNSAFE = "unsafe: "
-
-
-class SafetyScreen:
-    """The safety sweep (``TuneRequest.safety``) at the log's rig: the image size, focal length and baseline most
-    of its calibrated training frames share (``request.safety`` gets the first of them). Rendered once, when first
-    needed; each parameter set read on it once, as the daemon flies (objective.branch_distances).
-
-    A candidate fails it when it reads more sweep frames farther than the truth (by more than FARTHER_TOL_PCT)
-    than the base, or when its median absolute error over the frames both read exceeds SWEEP_MEDIAN_FACTOR x the
-    base's + SWEEP_MEDIAN_SLACK_PCT: synthetic scenes judge safety and the nominal case here, the log's own frames
-    judge the rest. :meth:`reject` is the held-out choice's screen (study.select): a candidate about to win that fails is set
-    aside and the next one tried, so a tune ships the best candidate that passes instead of refusing the best one.
-    :meth:`check` is the gate's verdict on the chosen parameters. Inactive (check None) without a sweep or a
-    calibrated training frame."""
-
-    def __init__(self, request: TuneRequest, train: FrameSet, hooks: Hooks):
-        self.request, self.hooks = request, hooks
-        calibrated = [f for f in train.frames if f.focal_px and f.baseline_m] if request.safety is not None else []
-        rigs = Counter(_rig(f) for f in calibrated)     # a log of mixed rigs: the one most of its frames come from
-        self.sample = (next(f for f in calibrated if _rig(f) == rigs.most_common(1)[0][0]) if calibrated
-                       else None)
-        self._frames: FrameSet | None = None
-        self._read: dict[str, list[float | None]] = {}
-
-    @property
-    def active(self) -> bool:
-        return self.sample is not None
-
-    def _sweep(self) -> FrameSet:
-        if self._frames is None:
-            self.hooks.phase("the safety sweep: the base and each candidate about to win on synthetic branches from "
-                             "inside the minimum range out to 3 m")
-            self._frames = self.request.safety(self.sample)
-        return self._frames
-
-    def distances(self, params: StereoParams) -> list[float | None]:
-        """What ``params`` reads on each sweep frame (None: no distance), read once per parameter set."""
-        key = repr(sorted(params.to_dict().items()))
-        if key not in self._read:
-            self._read[key] = branch_distances(params, self._sweep())
-        return self._read[key]
-
-    def _verdict(self, params: StereoParams, rejecting: bool) -> FartherCheck:
-        frames = self._sweep().frames
-        truths = [f.branch_distance_m for f in frames]
-        base_d, tuned_d = self.distances(self.request.base), self.distances(params)
-        nb, nt = (sum(is_farther(d, t) for d, t in zip(ds, truths)) for ds in (base_d, tuned_d))
-        errs = [(abs(branch_signed(b, t)), abs(branch_signed(c, t))) for b, c, t in zip(base_d, tuned_d, truths)
-                if math.isfinite(t) and t > 0]
-        both = [e for e in errs if math.isfinite(e[0]) and math.isfinite(e[1])]
-        mb, mt = ((statistics.median(v[i] for v in both) if both else None) for i in (0, 1))
-        who = "reads" if rejecting else "the tuned parameters read"
-        reasons = []
-        if nt > nb:
-            reasons.append(f"{who} {nt} of the {len(frames)} safety-sweep frame(s) farther than the truth by more "
-                           f"than {FARTHER_TOL_PCT:g} %, the base {nb}")
-        if mb is not None and mt > SWEEP_MEDIAN_FACTOR * mb + SWEEP_MEDIAN_SLACK_PCT:
-            reasons.append(f"{who} the {len(both)} safety-sweep frame(s) both read with a median absolute error of "
-                           f"{mt:.2f} %, above {SWEEP_MEDIAN_FACTOR:g} x the base's {mb:.2f} % + "
-                           f"{SWEEP_MEDIAN_SLACK_PCT:g}")
-        return FartherCheck(nb, nt, len(frames), "; ".join(reasons) or None, base_median=mb, tuned_median=mt)
-
-    def reject(self, params_dict: dict[str, Any]) -> str | None:
-        """Why a candidate may not win (it fails the sweep), or None."""
-        why = self._verdict(params_from_dict(params_dict), rejecting=True).reason
-        return None if why is None else UNSAFE + why
-
-    def check(self, chosen: StereoParams) -> FartherCheck | None:
-        """The base's and the chosen parameters' figures on the sweep and the gate's refusal when the chosen fails
-        it; None when inactive or when the base is kept (nothing to check)."""
-        if not self.active or chosen == self.request.base:
-            return None
-        return self._verdict(chosen, rejecting=False)
-
-
 def safety_check(request: TuneRequest, chosen: StereoParams, train: FrameSet, hooks: Hooks) -> FartherCheck | None:
-    """The gate's safety-sweep count for ``chosen`` alone (:meth:`SafetyScreen.check`)."""
-    return SafetyScreen(request, train, hooks).check(chosen)
+    """The gate's safety-sweep verdict for ``chosen`` alone (:meth:`SafetyScreen.check`)."""
+    return _screen(request, train, hooks).check(chosen)
+
+
+def _screen(request: TuneRequest, train: FrameSet, hooks: Hooks) -> SafetyScreen:
+    return SafetyScreen(request.safety, request.base, train, hooks.phase)
 
 
 def _pooled_selection(fitness, base: StereoParams, result: StudyResult, selections: list[Selection],
