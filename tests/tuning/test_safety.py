@@ -8,7 +8,55 @@ from uav_depth.core.params import load_params
 from uav_depth.sim.sweep import quick_sweep, render_with_truth
 from uav_depth.tuning.frames import FrameData, FrameSet
 from uav_depth.tuning.safety import SafetyScreen
-from uav_depth.tuning.tune import TuneRequest, study_config
+from uav_depth.tuning.tune import Hooks, TuneRequest, safety_check, study_config
+
+
+FLIGHT = load_params(Path(__file__).resolve().parents[2] / "deploy" / "params-flight.yaml")
+#: The flight file tuned on 96 leafy scenes and six real pairs (2026-12-05), which the gate wrote before the sweep
+#: existed: it reads the twig frame below 2.6 % farther.
+T96 = FLIGHT.replace(**{"sgbm.p1": 12, "sgbm.p2": 649, "sgbm.disp12_max_diff": 325, "sgbm.pre_filter_cap": 62,
+                        "sgbm.uniqueness_ratio": 1, "sgbm.speckle_window_size": 6, "sgbm.speckle_range": 35})
+
+
+def _twig_frame() -> FrameData:
+    """The quick sweep's leafy seed-0 branch at 2 m (truth 1.403 m, a twig), which the flight file reads within
+    0.02 %."""
+    cfg = dict(quick_sweep())["leafy-s0-2.00m"]
+    left, right, truth_m, roi = render_with_truth(cfg)
+    return FrameData("safety/leafy-s0-2.00m", left, right, branch_distance_m=truth_m, roi=roi,
+                     focal_px=cfg.focal_px, baseline_m=cfg.baseline_m)
+
+
+def _request(safety) -> TuneRequest:
+    return TuneRequest("unused", study_config("random", None, None, None, 4, 1, 1, 0), FLIGHT, "unused",
+                       safety=safety)
+
+
+def test_the_safety_sweep_refuses_a_candidate_that_reads_a_sweep_frame_farther():
+    """A file the gate wrote before the sweep existed (the flight file tuned on 96 leafy scenes and six real
+    pairs, 2026-12-05): it reads the quick sweep's leafy seed-0 branch at 2 m (truth 1.403 m, a twig) at 1.44 m,
+    2.6 % farther; the flight file it started from reads it within 2 %. The sweep here is that one real frame."""
+    flight, tuned, frame = FLIGHT, T96, _twig_frame()
+    left, right = frame.left, frame.right
+    sweep = FrameSet("safety", (frame,))
+    seen = []
+    request = _request(lambda sample: seen.append(sample) or sweep)
+    check = safety_check(request, tuned, FrameSet("train", (frame,)), Hooks())
+    assert (check.base, check.tuned, check.frames) == (0, 1, 1)
+    assert check.reason == ("the tuned parameters read 1 of the 1 safety-sweep frame(s) farther than the truth by "
+                            "more than 2 %, the base 0; the tuned parameters read the 1 safety-sweep frame(s) both "
+                            "read with a median absolute error of 2.63 %, above 1.1 x the base's 0.02 % + 0.25")
+    assert (round(check.base_median, 2), round(check.tuned_median, 2)) == (0.02, 2.63)
+    assert seen == [frame]                    # rendered at the rig of the log's calibrated frames
+    # nothing to check when the base is kept, or when no frame of the log has a calibration
+    assert safety_check(request, flight, FrameSet("train", (frame,)), Hooks()) is None
+    uncalibrated = FrameData("log/0", left, right)
+    assert safety_check(request, tuned, FrameSet("train", (uncalibrated,)), Hooks()) is None
+    # a log of mixed rigs: the sweep is rendered at the rig most of its frames share, not its first frame's
+    other = FrameData("real/0", left[:370, :413], right[:370, :413], focal_px=1246.7, baseline_m=0.16)
+    seen.clear()
+    safety_check(request, tuned, FrameSet("train", (other, uncalibrated, frame, frame)), Hooks())
+    assert seen == [frame]
 
 
 def test_the_safety_screen_sets_a_farther_or_a_less_accurate_candidate_aside(monkeypatch):
@@ -18,18 +66,13 @@ def test_the_safety_screen_sets_a_farther_or_a_less_accurate_candidate_aside(mon
     accurate than the base allows (1.1 x 0.02 + 0.25 %), and on the 330-frame sweep its median error is 1.58 %
     against the flight file's 1.15 %: set aside too. A candidate that reads as the base passes. The sweep is
     rendered once, each parameter set read once."""
-    flight = load_params(Path(__file__).resolve().parents[2] / "deploy" / "params-flight.yaml")
-    unsafe = flight.replace(**{"sgbm.p1": 12, "sgbm.p2": 649, "sgbm.disp12_max_diff": 325, "sgbm.pre_filter_cap": 62,
-                               "sgbm.uniqueness_ratio": 1, "sgbm.speckle_window_size": 6, "sgbm.speckle_range": 35})
+    flight, unsafe = FLIGHT, T96
     nearer = flight.replace(**{"sgbm.p1": 11, "sgbm.p2": 741, "sgbm.disp12_max_diff": 107, "sgbm.pre_filter_cap": 57,
                                "sgbm.uniqueness_ratio": 2, "sgbm.speckle_window_size": 39, "sgbm.speckle_range": 315})
-    cfg = dict(quick_sweep())["leafy-s0-2.00m"]
-    left, right, truth_m, roi = render_with_truth(cfg)
-    frame = FrameData("safety/leafy-s0-2.00m", left, right, branch_distance_m=truth_m, roi=roi,
-                      focal_px=cfg.focal_px, baseline_m=cfg.baseline_m)
+    frame = _twig_frame()
+    left, right = frame.left, frame.right
     renders, phases, reads = [], [], []
-    request = TuneRequest("unused", study_config("random", None, None, None, 4, 1, 1, 0), flight, "unused",
-                          safety=lambda sample: renders.append(sample) or FrameSet("safety", (frame,)))
+    request = _request(lambda sample: renders.append(sample) or FrameSet("safety", (frame,)))
     screen = SafetyScreen(request.safety, flight, FrameSet("train", (frame,)), phases.append)
     assert screen.active and renders == []                   # nothing rendered before a candidate needs it
     assert screen.reject(unsafe.to_dict()).startswith("unsafe: reads 1 of the 1 safety-sweep frame(s) farther than "
