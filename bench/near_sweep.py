@@ -23,6 +23,7 @@ about 1.8 MB a frame, shared by both parameter sets and by reruns.
     .venv/bin/python bench/near_sweep.py --quick            # 14 distances x 2 seeds x 3 variants
     .venv/bin/python bench/near_sweep.py                    # the full sweep (296 distances x 5 seeds x 3)
     .venv/bin/python bench/near_sweep.py --min-m 0.05 --max-m 0.4 --params flight --json
+    .venv/bin/python bench/near_sweep.py --first-seed 10 --step-m 0.05 --params flight --flight-file tuned.yaml
 """
 
 from __future__ import annotations
@@ -32,10 +33,12 @@ import json
 import math
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+import scenebench
 from scenebench import (PARAM_SET_NAMES, Measurer, add_ranging_args, flight_max_range_m, fmt_pct, param_sets,
                         ranging_config, rel_err, render_cached)
 
@@ -143,11 +146,15 @@ def main(argv=None) -> None:
                          "developed on 0-4, uav-depth tune's safety sweep uses 10-14)")
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     ap.add_argument("--params", nargs="+", default=["baseline", "flight"], choices=PARAM_SET_NAMES)
+    ap.add_argument("--flight-file", type=Path, default=None,
+                    help="measure this parameter file as the 'flight' set (e.g. a tuned candidate; with --max-m)")
     ap.add_argument("--no-cache", action="store_true")
     ap.add_argument("--json", action="store_true", help="print rows and summary as JSON instead of the table")
     add_ranging_args(ap)
     ap.add_argument("--per-distance", action="store_true", help="also print one line per distance")
     args = ap.parse_args(argv)
+    if args.flight_file is not None:
+        scenebench.FLIGHT_FILE = args.flight_file
     max_m = args.max_m if args.max_m is not None else flight_max_range_m()
     dists = list(QUICK_DISTANCES) if args.quick else distances(args.min_m, max_m, args.step_m)
     seeds = list(range(2)) if args.quick else list(range(args.first_seed, args.first_seed + args.seeds))
