@@ -44,8 +44,8 @@ def test_the_safety_sweep_refuses_a_candidate_that_reads_a_sweep_frame_farther()
     check = safety_check(request, tuned, FrameSet("train", (frame,)), Hooks())
     assert (check.base, check.tuned, check.frames) == (0, 1, 1)
     assert check.reason == ("the tuned parameters read 1 of the 1 safety-sweep frame(s) farther than the truth by "
-                            "more than 2 %, the base 0; the tuned parameters read the 1 safety-sweep frame(s) both "
-                            "read with a median absolute error of 2.63 %, above 1.1 x the base's 0.02 % + 0.25")
+                            "more than 2 %, the base 0; the tuned parameters read the 1 leafy safety-sweep frame(s) "
+                            "both read with a median absolute error of 2.63 %, above 1.1 x the base's 0.02 % + 0.25")
     assert (round(check.base_median, 2), round(check.tuned_median, 2)) == (0.02, 2.63)
     assert seen == [frame]                    # rendered at the rig of the log's calibrated frames
     # nothing to check when the base is kept, or when no frame of the log has a calibration
@@ -77,8 +77,8 @@ def test_the_safety_screen_sets_a_farther_or_a_less_accurate_candidate_aside(mon
     assert screen.active and renders == []                   # nothing rendered before a candidate needs it
     assert screen.reject(unsafe.to_dict()).startswith("unsafe: reads 1 of the 1 safety-sweep frame(s) farther than "
                                                       "the truth by more than 2 %, the base 0; ")
-    assert screen.reject(nearer.to_dict()) == ("unsafe: reads the 1 safety-sweep frame(s) both read with a median "
-                                               "absolute error of 1.40 %, above 1.1 x the base's 0.02 % + 0.25")
+    assert screen.reject(nearer.to_dict()) == ("unsafe: reads the 1 leafy safety-sweep frame(s) both read with a "
+                                               "median absolute error of 1.40 %, above 1.1 x the base's 0.02 % + 0.25")
     assert screen.reject(flight.to_dict()) is None
     check = screen.check(nearer)
     assert (check.base, check.tuned, check.frames) == (0, 0, 1) and "median absolute error of 1.40 %" in check.reason
@@ -90,3 +90,31 @@ def test_the_safety_screen_sets_a_farther_or_a_less_accurate_candidate_aside(mon
     # no sweep asked for, or no calibrated frame: inactive
     assert not SafetyScreen(None, flight, FrameSet("train", (frame,))).active
     assert not SafetyScreen(request.safety, flight, FrameSet("train", (FrameData("log/0", left, right),))).active
+
+
+def test_a_worse_nominal_case_fails_the_sweep_even_when_the_pooled_median_is_better(monkeypatch):
+    """The accuracy rule is per scene variant: a candidate that reads leafy frames better must not hide a worse
+    plain branch (2026-12-05: a tuned file read the sweep's plain branch 2.18 % off against the flight file's
+    1.34 %, passed pooled by 0.002 point, and read the real pairs worse). The readings are scripted per parameter
+    set; what is tested is the verdict on them."""
+    import numpy as np
+
+    blank = np.zeros((8, 8), np.uint8)
+    frames = tuple(FrameData(f"safety/{v}-s10-{i}m", blank, blank, branch_distance_m=1.0, focal_px=700.0,
+                             baseline_m=0.063) for v, n in (("plain", 4), ("leafy", 8)) for i in range(n))
+    base_err = {"plain": 0.010, "leafy": 0.010}
+    tuned_err = {"plain": 0.022, "leafy": 0.005}
+
+    def readings(params, frame_set):
+        err = base_err if params == FLIGHT else tuned_err
+        return [1.0 - err[f.key.split("/")[1].split("-")[0]] for f in frame_set.frames]   # nearer: never farther
+    monkeypatch.setattr("uav_depth.tuning.safety.branch_distances", readings)
+    screen = SafetyScreen(lambda sample: FrameSet("safety", frames), FLIGHT, FrameSet("train", frames[:1]))
+    check = screen.check(T96)
+    assert (check.base, check.tuned) == (0, 0)
+    assert check.tuned_median < check.base_median                       # pooled, the candidate looks better
+    assert check.reason == ("the tuned parameters read the 4 plain safety-sweep frame(s) both read with a median "
+                            "absolute error of 2.20 %, above 1.1 x the base's 1.00 % + 0.25")
+    tuned_err["plain"] = 0.013                                           # within 1.1 x 1.00 + 0.25 = 1.35 %
+    assert SafetyScreen(lambda sample: FrameSet("safety", frames), FLIGHT, FrameSet("train", frames[:1])).check(
+        T96).reason is None
