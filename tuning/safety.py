@@ -60,7 +60,7 @@ class SafetyScreen:
         self.sample = (next(f for f in calibrated if _rig(f) == rigs.most_common(1)[0][0]) if calibrated
                        else None)
         self._frames: FrameSet | None = None
-        self._read: dict[str, list[float | None]] = {}
+        self._read: dict[StereoParams, list[float | None]] = {}
 
     @property
     def active(self) -> bool:
@@ -75,10 +75,9 @@ class SafetyScreen:
 
     def distances(self, params: StereoParams) -> list[float | None]:
         """What ``params`` reads on each sweep frame (None: no distance), read once per parameter set."""
-        key = repr(sorted(params.to_dict().items()))
-        if key not in self._read:
-            self._read[key] = branch_distances(params, self._sweep())
-        return self._read[key]
+        if params not in self._read:
+            self._read[params] = branch_distances(params, self._sweep())
+        return self._read[params]
 
     def _verdict(self, params: StereoParams, rejecting: bool) -> FartherCheck:
         frames = self._sweep().frames

@@ -19,10 +19,11 @@ in order for one request and says whether the result may be written (:attr:`Deci
   sessions) as well;
 - on the safety sweep (``TuneRequest.safety``: synthetic frames the caller renders at the log's rig, from
   inside the minimum range out to the working distance), it reads no more frames farther than the truth than
-  the base does: a log holds few frames near the minimum range or with twigs in front, and those are where a
-  tuned matcher goes wrong unseen (a file this gate wrote sent a branch inside the minimum range as a distance).
-  The sweep also screens the held-out choice (:class:`SafetyScreen`): a candidate about to win that reads more
-  sweep frames farther is set aside and the next best tried, so an unsafe best does not cost a safe runner-up;
+  the base does, and no scene variant less accurately (:mod:`.safety`): a log holds few frames near the minimum
+  range or with twigs in front, and those are where a tuned matcher goes wrong unseen (a file this gate wrote
+  sent a branch inside the minimum range as a distance). The sweep also screens the held-out choice
+  (:class:`~uav_depth.tuning.safety.SafetyScreen`): a candidate about to win that fails it is set aside and the
+  next best tried, so an unsafe best does not cost a safe runner-up;
 - with ``max_ms``, some evaluated candidate runs within the frame-time budget (else :attr:`Decision.blocked`).
 """
 
@@ -144,7 +145,7 @@ class Decision:
     executor_kind: str
     workers: int
     points: list[tuple[float, float]] = field(default_factory=list)
-    #: The safety sweep's farther counts (base, chosen), None when none ran (TuneRequest.safety, safety_check).
+    #: The safety sweep's verdict on the chosen parameters, None when none ran (TuneRequest.safety, SafetyScreen.check).
     safety: FartherCheck | None = None
 
     @property
@@ -309,11 +310,6 @@ def tune(request: TuneRequest, hooks: Hooks = Hooks()) -> Decision:
     return Decision(request, k, framesets, names, studies[0], results[0], selection, selections, folds, cross,
                     chosen, selection.chosen["train"], scores, beats, farther, cv_farther, budget, front, refused,
                     blocked, kind, workers, points, safety)
-
-
-def safety_check(request: TuneRequest, chosen: StereoParams, train: FrameSet, hooks: Hooks) -> FartherCheck | None:
-    """The gate's safety-sweep verdict for ``chosen`` alone (:meth:`SafetyScreen.check`)."""
-    return _screen(request, train, hooks).check(chosen)
 
 
 def _screen(request: TuneRequest, train: FrameSet, hooks: Hooks) -> SafetyScreen:

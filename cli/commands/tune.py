@@ -71,8 +71,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--safety-sweep", choices=("standard", "quick", "none"), default="standard",
                    help="standard (default): read each candidate about to win on synthetic branches from inside the "
                         "minimum range out to 3 m (330 frames rendered at the log's rig), set it aside when it reads "
-                        "more of those frames farther than the truth than the base does, and refuse to write such a "
-                        "choice; quick: 84 frames (weaker: for trying things out); none: skip")
+                        "more of those frames farther than the truth than the base does or ranges a scene variant "
+                        "less accurately, and refuse to write such a choice; quick: 84 frames (weaker: for trying "
+                        "things out); none: skip")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 

@@ -8,7 +8,7 @@ from uav_depth.core.params import load_params
 from uav_depth.sim.sweep import quick_sweep, render_with_truth
 from uav_depth.tuning.frames import FrameData, FrameSet
 from uav_depth.tuning.safety import SafetyScreen
-from uav_depth.tuning.tune import Hooks, TuneRequest, safety_check, study_config
+from uav_depth.tuning.tune import TuneRequest, study_config
 
 
 FLIGHT = load_params(Path(__file__).resolve().parents[2] / "deploy" / "params-flight.yaml")
@@ -27,6 +27,11 @@ def _twig_frame() -> FrameData:
                      focal_px=cfg.focal_px, baseline_m=cfg.baseline_m)
 
 
+def _gate(request: TuneRequest, chosen, train: FrameSet):
+    """The gate's verdict on ``chosen``, built as tune() builds its screen: the request's sweep and base."""
+    return SafetyScreen(request.safety, request.base, train).check(chosen)
+
+
 def _request(safety) -> TuneRequest:
     return TuneRequest("unused", study_config("random", None, None, None, 4, 1, 1, 0), FLIGHT, "unused",
                        safety=safety)
@@ -41,7 +46,7 @@ def test_the_safety_sweep_refuses_a_candidate_that_reads_a_sweep_frame_farther()
     sweep = FrameSet("safety", (frame,))
     seen = []
     request = _request(lambda sample: seen.append(sample) or sweep)
-    check = safety_check(request, tuned, FrameSet("train", (frame,)), Hooks())
+    check = _gate(request, tuned, FrameSet("train", (frame,)))
     assert (check.base, check.tuned, check.frames) == (0, 1, 1)
     assert check.reason == ("the tuned parameters read 1 of the 1 safety-sweep frame(s) farther than the truth by "
                             "more than 2 %, the base 0; the tuned parameters read the 1 leafy safety-sweep frame(s) "
@@ -49,13 +54,13 @@ def test_the_safety_sweep_refuses_a_candidate_that_reads_a_sweep_frame_farther()
     assert (round(check.base_median, 2), round(check.tuned_median, 2)) == (0.02, 2.63)
     assert seen == [frame]                    # rendered at the rig of the log's calibrated frames
     # nothing to check when the base is kept, or when no frame of the log has a calibration
-    assert safety_check(request, flight, FrameSet("train", (frame,)), Hooks()) is None
+    assert _gate(request, flight, FrameSet("train", (frame,))) is None
     uncalibrated = FrameData("log/0", left, right)
-    assert safety_check(request, tuned, FrameSet("train", (uncalibrated,)), Hooks()) is None
+    assert _gate(request, tuned, FrameSet("train", (uncalibrated,))) is None
     # a log of mixed rigs: the sweep is rendered at the rig most of its frames share, not its first frame's
     other = FrameData("real/0", left[:370, :413], right[:370, :413], focal_px=1246.7, baseline_m=0.16)
     seen.clear()
-    safety_check(request, tuned, FrameSet("train", (other, uncalibrated, frame, frame)), Hooks())
+    _gate(request, tuned, FrameSet("train", (other, uncalibrated, frame, frame)))
     assert seen == [frame]
 
 
