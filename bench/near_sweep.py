@@ -17,7 +17,9 @@ Printed per parameter set: frames; frames whose truth lies inside the minimum ra
 and how many of them were reported too close / sent as a valid distance; frames
 reported farther than the truth by more than 2 % (valid distances only); median and
 worst error of the valid distances (signed, relative to the truth); frames without a
-measurement. Renders are cached in /tmp/uav-depth-scene-cache (UAV_DEPTH_SCENE_CACHE),
+measurement. Then the farther readings by the width of the truth object at the input
+resolution (f x thickness / distance: is a miss a twig too thin for the camera?).
+Renders are cached in /tmp/uav-depth-scene-cache (UAV_DEPTH_SCENE_CACHE),
 about 1.8 MB a frame, shared by both parameter sets and by reruns.
 
     .venv/bin/python bench/near_sweep.py --quick            # 14 distances x 2 seeds x 3 variants
@@ -55,6 +57,47 @@ def distances(min_m: float, max_m: float, step_m: float) -> list[float]:
     return [round(min_m + i * step_m, 4) for i in range(n + 1)]
 
 
+def width_px(thickness_m: float, distance_m: float, focal_px: float) -> float:
+    """How many input pixels across the truth object is: f x thickness / distance (inf: the background plane)."""
+    if not (math.isfinite(distance_m) and distance_m > 0) or math.isnan(thickness_m):
+        return math.nan
+    return math.inf if math.isinf(thickness_m) else focal_px * thickness_m / distance_m
+
+
+#: Bins of the truth object's width at the input resolution, px (by_width): a twig of w m at Z m spans f w / Z.
+WIDTH_BINS = (0.0, 1.5, 2.0, 3.0, 5.0, 10.0, math.inf)
+
+
+def by_width(rows: list[dict[str, Any]], bins=WIDTH_BINS) -> list[dict[str, Any]]:
+    """Per parameter set and bin of the truth object's width (input px): in-range frames, how many were sent as
+    a distance, and how many of them read farther than the truth by more than 2 % and 5 %. The background plane
+    and the target branch fall in the last bins; twigs at the resolution limit in the first."""
+    out = []
+    for name in dict.fromkeys(r["params"] for r in rows):
+        for lo, hi in zip(bins[:-1], bins[1:]):
+            rs = [r for r in rows if r["params"] == name and not r["inside_min"]
+                  and lo <= r["truth_width_px"] < hi]
+            if not rs:
+                continue
+            out.append({"params": name, "lo_px": lo, "hi_px": hi, "frames_in_range": len(rs),
+                        "sent_valid": sum(r["reported_m"] is not None for r in rs),
+                        "farther_2pct": sum(r["farther"] for r in rs),
+                        "farther_5pct": sum(r["err"] is not None and r["err"] > 0.05 for r in rs)})
+    return out
+
+
+def format_width_table(rows: list[dict[str, Any]]) -> str:
+    head = f"{'params':9s} {'width px':>10s} {'in range':>8s} {'sent':>6s} {'farther>2%':>10s} {'>5%':>5s} {'share>2%':>8s}"
+    lines = ["by the truth object's width at the input resolution (f x thickness / distance; inf: background)",
+             head, "-" * len(head)]
+    for r in rows:
+        share = f"{100 * r['farther_2pct'] / r['sent_valid']:.1f}%" if r["sent_valid"] else "-"
+        lines.append(f"{r['params']:9s} {r['lo_px']:4g}-{r['hi_px']:<5g} {r['frames_in_range']:8d} {r['sent_valid']:6d} "
+                     f"{r['farther_2pct']:10d} {r['farther_5pct']:5d} {share:>8s}")
+    lines.append("share>2%: of the frames sent as a distance")
+    return "\n".join(lines)
+
+
 def sweep(dists, seeds, variants=tuple(VARIANTS), params_names=("baseline", "flight"), cache: bool = True,
           progress: bool = False, ranging: RangingConfig | None = None) -> list[dict[str, Any]]:
     """One row per (parameter set, variant, seed, distance): truth, what the wire says, the judgement."""
@@ -77,6 +120,8 @@ def sweep(dists, seeds, variants=tuple(VARIANTS), params_names=("baseline", "fli
                     out["exact_err"] = rel_err(meas.measure_exact(frame.disparity), frame.truth_m)
                     rows.append({"params": name, "variant": variant, "seed": seed, "distance_m": d,
                                  "truth_m": frame.truth_m, "nearest_any_m": frame.nearest_any_m,
+                                 "truth_thickness_m": frame.truth_thickness_m,
+                                 "truth_width_px": width_px(frame.truth_thickness_m, frame.truth_m, cfg.focal_px),
                                  "min_range_m": meas.min_range_m, "inside_min": bool(inside), **out, "err": err,
                                  "farther": bool(err is not None and err > FARTHER_TOL)})
                 done += 1
@@ -161,13 +206,15 @@ def main(argv=None) -> None:
     rows = sweep(dists, seeds, args.variants, args.params, cache=not args.no_cache, progress=not args.json,
                  ranging=ranging_config(args.thin_guard_cm2))
     summary = summarize(rows)
+    widths = by_width(rows)
     if args.json:
-        print(json.dumps({"summary": summary, "rows": rows}, indent=1))
+        print(json.dumps({"summary": summary, "by_width": widths, "rows": rows}, indent=1))
         return
     print(machine_line())
     print(f"near sweep: {len(dists)} distances {dists[0]:.2f}..{dists[-1]:.2f} m, seeds {seeds}, variants "
           f"{args.variants}, 1280x720 f=700 px B=0.063 m, thin guard {ranging_config(args.thin_guard_cm2).thin_guard_m2 * 1e4:g} cm^2")
     print(format_table(summary))
+    print(format_width_table(widths))
     if args.per_distance:
         for r in rows:
             print(f"  {r['params']:8s} {r['variant']:6s} s{r['seed']} d={r['distance_m']:.2f} truth "

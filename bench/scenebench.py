@@ -61,6 +61,7 @@ class Rendered:
     nearest_any_m: float    # nearest surface of anything there, needles included
     target_m: float         # nearest surface of the target branch there
     disparity: np.ndarray   # exact left disparity, px (0 on the sky)
+    truth_thickness_m: float = math.nan   # that object's thickness (inf: the background plane; NaN: none)
 
 
 def render_cached(cfg: SceneConfig, cache: bool = True) -> Rendered:
@@ -72,18 +73,20 @@ def render_cached(cfg: SceneConfig, cache: bool = True) -> Rendered:
     path = CACHE_DIR / f"{key}.npz"
     if cache and path.exists():
         z = np.load(path)
-        if "disp" in z.files:
-            return Rendered(z["left"], z["right"], float(z["truth"]), float(z["any"]), float(z["target"]), z["disp"])
+        if "thick" in z.files:
+            return Rendered(z["left"], z["right"], float(z["truth"]), float(z["any"]), float(z["target"]), z["disp"],
+                            float(z["thick"]))
     frame = render(cfg)
     roi = cfg.center_roi
     t = frame.truth(roi)
+    thick = float(frame.thickness_m[t.object_index]) if t.object_index >= 0 else math.nan
     r = Rendered(frame.left, frame.right, t.significant_m, t.nearest_any_m, frame.nearest_branch_distance(roi),
-                 frame.disparity)
+                 frame.disparity, thick)
     if cache:
         CACHE_DIR.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
         np.savez(tmp, left=r.left, right=r.right, truth=r.truth_m, any=r.nearest_any_m, target=r.target_m,
-                 disp=r.disparity)
+                 disp=r.disparity, thick=r.truth_thickness_m)
         os.replace(tmp, path)
     return r
 
