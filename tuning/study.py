@@ -364,8 +364,11 @@ def choose_under_budget(store: RunStore, fitness_name: str, frames: FrameSet, ma
 
 # -- the choice: on frames the search did not see ------------------------------------------------------------------
 
-#: How many of the best training candidates are scored on the held-out frames for the choice.
+#: How many of the best training candidates the held-out choice is among (study.select): the best SELECT_TOP
+#: that may win; each one set aside (fragile, or refused by the safety sweep) is replaced by the next best.
 SELECT_TOP = 6
+#: How deep in the training ranking those replacements may go (tune passes this many to study.select).
+SELECT_POOL = 30
 
 
 def fragile_reason(params: StereoParams) -> str | None:
@@ -420,14 +423,19 @@ def select(executor: Executor, fitness_name: str, base: StereoParams, base_train
            candidates: Sequence[tuple[dict[str, Any], float]], have_holdout: bool, *,
            train_set: str = "train", holdout_set: str = "holdout",
            nudge_keys: Sequence[str] | None = None,
-           screen: Callable[[dict[str, Any]], str | None] | None = None) -> Selection:
-    """Score the base and ``candidates`` on the held-out frames; the best non-fragile one wins.
+           screen: Callable[[dict[str, Any]], str | None] | None = None,
+           top: int = SELECT_TOP) -> Selection:
+    """Score the base and the best ``top`` of ``candidates`` (best training value first) on the held-out frames;
+    the best one that is not set aside wins.
 
-    Fragile: P1/P2 near the cost limit (:func:`fragile_reason`), or, with ``nudge_keys``, a one-step nudge of
-    one of those keys on the training frames loses the candidate's whole gain over the base
+    Set aside: fragile, i.e. P1/P2 near the cost limit (:func:`fragile_reason`), or, with ``nudge_keys``, a
+    one-step nudge of one of those keys on the training frames loses the candidate's whole gain over the base
     (``robust.nudge_check``; checked only for a candidate about to win, then the next is tried). ``screen``:
     another check of a candidate about to win that beats the base, returning why it may not (the tuner's
     safety sweep, ``safety.SafetyScreen.reject``) or None; a rejected one is set aside the same way.
+    Each candidate set aside is replaced by the next one of ``candidates`` (scored on the held-out frames too),
+    so the choice is always among ``top`` candidates that may win: a screen that refuses the best ones does not
+    narrow it to the rest of a fixed list, and the held-out frames never choose among more than ``top``.
     Without held-out frames the choice falls back to the training value (reports say so).
     Ties keep the earlier row (the base first, then the better training value).
     """
@@ -435,36 +443,53 @@ def select(executor: Executor, fitness_name: str, base: StereoParams, base_train
 
     fitness = FITNESS[fitness_name]
     rows = [{"params": base.to_dict(), "train": base_train}]
-    for params, value in candidates:
-        if params != rows[0]["params"]:
-            rows.append({"params": params, "train": value})
-    held = run_all(executor, [Task(r["params"], holdout_set) for r in rows]) if have_holdout else [None] * len(rows)
-    for r, ev in zip(rows, held):
-        r["holdout"] = math.nan if ev is None else (ev.value if ev.ok else fitness.worst)
-        r["fragile"] = fragile_reason(params_from_dict(r["params"]))
-        r["train_utility"] = fitness.utility(r["train"])
-        r["holdout_utility"] = fitness.utility(r["holdout"])
+    reserve = [(params, value) for params, value in candidates if params != rows[0]["params"]]
     on = "holdout" if have_holdout else "train"
-    order = sorted(range(1, len(rows)), key=lambda i: (-rows[i][f"{on}_utility"], i))
-    winner = 0
-    for i in order:
-        r = rows[i]
-        if r["fragile"] is not None:
-            continue
-        if nudge_keys and r[f"{on}_utility"] > rows[0][f"{on}_utility"]:
-            check = nudge_check(executor, fitness_name, params_from_dict(r["params"]), r["train"], base_train,
-                                nudge_keys, train_set)
-            r["nudges"] = check.values
-            if check.reason is not None:
+
+    def score(new: list[dict[str, Any]]) -> None:
+        held = run_all(executor, [Task(r["params"], holdout_set) for r in new]) if have_holdout else [None] * len(new)
+        for r, ev in zip(new, held):
+            r["holdout"] = math.nan if ev is None else (ev.value if ev.ok else fitness.worst)
+            r["fragile"] = fragile_reason(params_from_dict(r["params"]))
+            r["train_utility"] = fitness.utility(r["train"])
+            r["holdout_utility"] = fitness.utility(r["holdout"])
+
+    def fill() -> bool:
+        """Score more candidates until ``top`` of them may win (or none is left); whether any was added."""
+        added = False
+        while reserve and sum(r["fragile"] is None for r in rows[1:]) < top:
+            need = top - sum(r["fragile"] is None for r in rows[1:])
+            new = [{"params": params, "train": value} for params, value in reserve[:need]]
+            del reserve[:need]
+            score(new)
+            rows.extend(new)
+            added = True
+        return added
+
+    score(rows)
+    fill()
+    winner, settled = 0, False
+    while not settled:
+        settled = True
+        for i in sorted(range(1, len(rows)), key=lambda i: (-rows[i][f"{on}_utility"], i)):
+            r = rows[i]
+            if r["fragile"] is not None:
+                continue
+            beats = r[f"{on}_utility"] > rows[0][f"{on}_utility"]
+            if nudge_keys and beats:
+                check = nudge_check(executor, fitness_name, params_from_dict(r["params"]), r["train"], base_train,
+                                    nudge_keys, train_set)
+                r["nudges"] = check.values
                 r["fragile"] = check.reason
+            if r["fragile"] is None and screen is not None and beats:
+                r["fragile"] = screen(r["params"])
+            if r["fragile"] is not None:
+                if fill():          # a newcomer may now rank anywhere: choose again
+                    settled = False
+                    break
                 continue
-        if screen is not None and r[f"{on}_utility"] > rows[0][f"{on}_utility"]:
-            why = screen(r["params"])
-            if why is not None:
-                r["fragile"] = why
-                continue
-        winner = i
-        break
+            winner = i
+            break
     return Selection(rows, winner, on)
 
 

@@ -48,8 +48,8 @@ from uav_depth.tuning.robust import CrossSelection, FartherCheck, cross_select, 
 from uav_depth.tuning.safety import UNSAFE, SafetyScreen
 from uav_depth.tuning.space import describe_space, parse_keys
 from uav_depth.tuning.store import RunStore, fold_study_name
-from uav_depth.tuning.study import (Selection, Study, StudyConfig, StudyResult, choose_under_budget, full_scores,
-                                    result_summary, search_front, select, top_candidates)
+from uav_depth.tuning.study import (SELECT_POOL, Selection, Study, StudyConfig, StudyResult, choose_under_budget,
+                                    full_scores, result_summary, search_front, select, top_candidates)
 
 
 def study_config(optimizer: str, metric: str | None, keys: str | None, max_ms: float | None, population: int,
@@ -257,7 +257,7 @@ def tune(request: TuneRequest, hooks: Hooks = Hooks()) -> Decision:
                                   "reason": choice.reason}
                     candidates = [] if choice.params is None else [(choice.params.to_dict(), choice.value)]
                 else:
-                    candidates = top_candidates(st, metric)
+                    candidates = top_candidates(st, metric, SELECT_POOL)
                 fold = f" (fold {j + 1} of {k})" if k > 1 else ""
                 hooks.phase(f"choosing among the best candidates on the {len(ho)} held-out frame(s){fold}"
                             if len(ho) else "choosing among the best candidates on the training frames")

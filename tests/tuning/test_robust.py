@@ -81,6 +81,32 @@ def test_a_screened_candidate_is_set_aside_for_the_next_one_that_beats_the_base(
     assert sel.chosen["params"]["sgbm"]["p2"] == 2600 and not sel.beats_base
 
 
+def test_each_candidate_set_aside_is_replaced_by_the_next_best_in_training():
+    """The choice is among ``top`` candidates that may win: the screen refuses the two best held out, so the
+    third in training order (held back until then) is scored on the held-out frames and wins; the fourth is
+    never scored. A candidate above the cost limit counts as set aside from the start."""
+    def fn(frameset, sg):
+        return {2400: 2.0, 5000: 1.0, 4000: 1.1, 3000: 1.5, 2600: 1.8, 2200: 1.9}[sg["p2"]]
+    refused = {5000, 4000}
+    cands = [(_with(600, 5000), 1.0), (_with(600, 4000), 1.1), (_with(600, 3000), 1.5), (_with(600, 2600), 1.8)]
+    ex = Scripted(fn)
+    sel = select(ex, "flown", DEFAULT_PARAMS, 2.0, cands, True, top=2,
+                 screen=lambda params: "unsafe: farther" if params["sgbm"]["p2"] in refused else None)
+    assert sel.chosen["params"]["sgbm"]["p2"] == 3000 and sel.beats_base
+    assert [r["params"]["sgbm"]["p2"] for r in sel.rows] == [2400, 5000, 4000, 3000, 2600]
+    assert ("holdout", 2600) in ex.calls       # replaced the second refusal, ranked below 3000
+    # Without replacements (a list of two) every candidate that beats the base is refused: the base stays.
+    sel = select(Scripted(fn), "flown", DEFAULT_PARAMS, 2.0, cands[:2], True, top=2,
+                 screen=lambda params: "unsafe: farther" if params["sgbm"]["p2"] in refused else None)
+    assert sel.winner == 0
+    # A fragile candidate (P2 above the winnable bound) is replaced before anything is screened.
+    cliff = DEFAULT_PARAMS.replace(**{"sgbm.p1": 600, "sgbm.p2": 20000}).to_dict()
+    ex = Scripted(lambda frameset, sg: {20000: 0.5}.get(sg["p2"]) or fn(frameset, sg))
+    sel = select(ex, "flown", DEFAULT_PARAMS, 2.0, [(cliff, 0.5)] + cands[2:], True, top=1)
+    assert sel.chosen["params"]["sgbm"]["p2"] == 3000
+    assert ("holdout", 2600) not in ex.calls
+
+
 def test_nudges_step_each_key_and_stay_on_the_schema():
     p = DEFAULT_PARAMS.replace(**{"sgbm.block_size": 3, "sgbm.p1": 100, "sgbm.p2": 101})
     labels = dict(nudges(p, ("sgbm.p1", "sgbm.p2", "sgbm.block_size", "sgbm.uniqueness_ratio", "wls.lambda")))
