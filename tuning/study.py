@@ -454,42 +454,35 @@ def select(executor: Executor, fitness_name: str, base: StereoParams, base_train
             r["train_utility"] = fitness.utility(r["train"])
             r["holdout_utility"] = fitness.utility(r["holdout"])
 
-    def fill() -> bool:
-        """Score more candidates until ``top`` of them may win (or none is left); whether any was added."""
-        added = False
-        while reserve and sum(r["fragile"] is None for r in rows[1:]) < top:
-            need = top - sum(r["fragile"] is None for r in rows[1:])
+    def fill() -> None:
+        """Score more candidates until ``top`` of them may win, or none is left."""
+        while reserve and (need := top - sum(r["fragile"] is None for r in rows[1:])) > 0:
             new = [{"params": params, "train": value} for params, value in reserve[:need]]
             del reserve[:need]
             score(new)
             rows.extend(new)
-            added = True
-        return added
 
     score(rows)
     fill()
-    winner, settled = 0, False
-    while not settled:
-        settled = True
-        for i in sorted(range(1, len(rows)), key=lambda i: (-rows[i][f"{on}_utility"], i)):
-            r = rows[i]
-            if r["fragile"] is not None:
-                continue
-            beats = r[f"{on}_utility"] > rows[0][f"{on}_utility"]
-            if nudge_keys and beats:
-                check = nudge_check(executor, fitness_name, params_from_dict(r["params"]), r["train"], base_train,
-                                    nudge_keys, train_set)
-                r["nudges"] = check.values
-                r["fragile"] = check.reason
-            if r["fragile"] is None and screen is not None and beats:
-                r["fragile"] = screen(r["params"])
-            if r["fragile"] is not None:
-                if fill():          # a newcomer may now rank anywhere: choose again
-                    settled = False
-                    break
-                continue
+    winner = 0
+    while True:     # the best row not set aside yet (ranked again each time: a newcomer may rank anywhere)
+        i = min((i for i in range(1, len(rows)) if rows[i]["fragile"] is None),
+                key=lambda i: (-rows[i][f"{on}_utility"], i), default=None)
+        if i is None:
+            break
+        r = rows[i]
+        beats = r[f"{on}_utility"] > rows[0][f"{on}_utility"]
+        if nudge_keys and beats:
+            check = nudge_check(executor, fitness_name, params_from_dict(r["params"]), r["train"], base_train,
+                                nudge_keys, train_set)
+            r["nudges"] = check.values
+            r["fragile"] = check.reason
+        if r["fragile"] is None and screen is not None and beats:
+            r["fragile"] = screen(r["params"])
+        if r["fragile"] is None:
             winner = i
             break
+        fill()
     return Selection(rows, winner, on)
 
 
