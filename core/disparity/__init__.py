@@ -37,7 +37,7 @@ import numpy as np
 
 from uav_depth.core.disparity.confidence import confidence_maps
 from uav_depth.core.disparity.fine import FineMatch, FineMatcher
-from uav_depth.core.disparity.near import NearCheck, max_disparity_px, near_params, near_pad, pad_views, textured
+from uav_depth.core.disparity.near import NearCheck, max_disparity_px, near_params, textured
 from uav_depth.core.disparity.match import Matchers, build_matchers, match_left, match_right, to_float
 from uav_depth.core.disparity.prepare import Prepared, check_pair, prepare
 from uav_depth.core.disparity.result import DisparityResult, Laps
@@ -59,7 +59,7 @@ class DisparityPipeline:
     def __init__(self, params: StereoParams, refine: bool = True, near: bool = False, fine: bool = False):
         self.params = params
         self.refine = refine and params.wls.enabled
-        self._near = _NearPass(params) if near else None
+        self._near = DisparityPipeline(near_params(params), refine=False) if near else None
         # The fine pass only adds resolution: at compute.scale 1 the main match is already full resolution.
         self._fine = FineMatcher(params) if fine and params.compute.fine_pass else None
         self.matchers: Matchers = build_matchers(params)
@@ -83,11 +83,12 @@ class DisparityPipeline:
         if self._near is None:
             return res if fine is None else replace(res, fine=fine)
         laps = Laps()
-        near_measured, near_confidence, tex = self._near.run(left, right)
-        check = NearCheck(near_measured, max_disparity_px(self.params), tex)
+        near, nwin, nprep = self._near._run(left, right)
+        tex = None if nwin is None or nprep is None else functools.partial(_textured_map, nwin, nprep, left.shape[:2])
+        check = NearCheck(near.measured, max_disparity_px(self.params), tex)
         laps.lap("near")
         return DisparityResult(res.disparity, res.measured, res.confidence, res.warning,
-                               {**res.timings_ms, **laps.ms}, near=check, near_confidence=near_confidence,
+                               {**res.timings_ms, **laps.ms}, near=check, near_confidence=near.confidence,
                                fine=fine, lr_consistent=res.lr_consistent)
 
     def _run(self, left: np.ndarray, right: np.ndarray) -> tuple[DisparityResult, Window | None, Prepared | None]:
@@ -202,45 +203,6 @@ class DisparityPipeline:
     def compute(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
         """(H, W) float32 disparity in px of the left image, NaN where invalid."""
         return self.run(left, right).disparity
-
-
-class _NearPass:
-    """The near pass (:func:`.near.near_params`) of one frame size, on views padded where its window would leave
-    part of the region unanswered (:func:`.near.near_pad`); its maps cut back to the input's columns."""
-
-    def __init__(self, params: StereoParams):
-        self.params = near_params(params)
-        self._sizes: dict[tuple[int, int], tuple[int, int, DisparityPipeline]] = {}
-
-    def _for(self, width: int, height: int) -> tuple[int, int, "DisparityPipeline"]:
-        if (width, height) not in self._sizes:
-            pad_l, pad_r = near_pad(self.params, width, height)
-            params = self.params
-            if pad_l or pad_r:
-                x0, y0, x1, y1 = params.compute.roi_pixels(width, height)
-                wp = pad_l + width + pad_r
-                params = params.replace(**{"compute.roi": ((x0 + pad_l) / wp, y0 / height,
-                                                           (x1 + pad_l) / wp, y1 / height)})
-            self._sizes[(width, height)] = pad_l, pad_r, DisparityPipeline(params, refine=False)
-        return self._sizes[(width, height)]
-
-    def run(self, left: np.ndarray, right: np.ndarray):
-        """(measured, confidence, textured: a callable or None), each (H, W) at the input's resolution."""
-        check_pair(left, right)
-        h, w = left.shape[:2]
-        pad_l, pad_r, pipe = self._for(w, h)
-        if pad_l or pad_r:
-            left, right = pad_views(left, right, pad_l, pad_r)
-        res, win, prep = pipe._run(left, right)
-        cols = slice(pad_l, pad_l + w)
-        tex = None if win is None or prep is None else (lambda: _textured_map(win, prep, left.shape[:2])[:, cols])
-        conf = None if res.confidence is None else res.confidence[:, cols]
-        measured = res.measured[:, cols]
-        if pad_l:
-            # A match whose partner lies left of the image (in the mirror) is no match.
-            with np.errstate(invalid="ignore"):
-                measured = np.where(measured > np.arange(w, dtype=np.float32), np.float32(np.nan), measured)
-        return measured, conf, tex
 
 
 def _upsample(win: Window, fn, *args, interpolation: int, margin: int = 0) -> np.ndarray:
