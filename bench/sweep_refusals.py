@@ -1,0 +1,85 @@
+"""What the tuner's safety sweep refuses: the stored candidates of a ``uav-depth tune`` run, read again on the
+sweep at the log's rig, frame by frame against the base.
+
+For each fold's best N candidates (training order, as ``tuning.study.select`` offers them) this prints the
+frames the candidate reads farther than the truth by more than 2 % and the base does not (with the base's own
+reading there: too close / no measurement, or its error), and the frames inside the minimum range it sends as
+distances. It is how docs/tuning.md (*Measured again: the default budget*, paragraph 3) found that the sweep's
+refusals on the real pairs are frames inside the minimum range sent as distances, not noise.
+
+    .venv/bin/python bench/sweep_refusals.py W/train W/row-0/store.sqlite --top 8
+    .venv/bin/python bench/sweep_refusals.py W/train W/tuned/store.sqlite --base deploy/params-flight.yaml
+
+``W`` is a ``bench/tune_real.py`` work folder (its training log and a row's store); any log and store of one
+``tune`` run will do. ``--folds`` must be the run's (3 for the real pairs' six sessions).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from uav_depth.cli.benchmark import machine_line
+from uav_depth.cli.commands.tune import safety_frames
+from uav_depth.core.disparity.near import max_disparity_px
+from uav_depth.core.params import DEFAULT_PARAMS, load_params, params_from_dict
+from uav_depth.tuning.frames import load_folds
+from uav_depth.tuning.metrics import branch_signed, is_farther
+from uav_depth.tuning.objective import FITNESS
+from uav_depth.tuning.safety import SafetyScreen
+from uav_depth.tuning.store import RunStore, fold_study_name
+from uav_depth.tuning.study import top_candidates
+
+
+def _reading(d: float | None, truth: float) -> str:
+    return "none (too close or no measurement)" if d is None else f"{branch_signed(d, truth):+.1f} %"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("logdir", help="the tune's training log")
+    ap.add_argument("store", help="the tune's Optuna store (store.sqlite)")
+    ap.add_argument("--base", help="the tune's --base (default: the manual baseline)")
+    ap.add_argument("--folds", type=int, default=3)
+    ap.add_argument("--top", type=int, default=8, help="candidates per fold, best training value first")
+    ap.add_argument("--metric", default="flown")
+    ap.add_argument("--sweep", choices=("standard", "quick"), default="standard")
+    args = ap.parse_args(argv)
+
+    base = load_params(args.base) if args.base else DEFAULT_PARAMS
+    folds = load_folds(args.logdir, args.folds, FITNESS[args.metric].needs)
+    screen = SafetyScreen(lambda sample: safety_frames(sample, args.sweep), base, folds[0][0])
+    if not screen.active:
+        raise SystemExit("no calibrated training frame: the tuner runs no safety sweep on this log")
+    frames = screen._sweep().frames
+    truth = [f.branch_distance_m for f in frames]
+    s = screen.sample
+    print(machine_line())
+    print(f"safety sweep: {len(frames)} frames at {s.left.shape[1]}x{s.left.shape[0]}, f = {s.focal_px:.1f} px, "
+          f"B = {s.baseline_m:.3f} m (the rig of {s.key})")
+
+    def line(name: str, params) -> list[int]:
+        d = screen.distances(params)
+        min_m = s.focal_px * s.baseline_m / max_disparity_px(params)
+        far = [k for k in range(len(frames)) if is_farther(d[k], truth[k])]
+        inside = [k for k in range(len(frames)) if truth[k] < min_m and d[k] is not None]
+        print(f"{name}: minimum range {min_m:.3f} m; farther than 2 %: {len(far)}; inside the minimum range "
+              f"sent as a distance: {len(inside)}" + "".join(f"\n    {frames[k].key} truth {truth[k]:.3f} m: "
+                                                             f"{d[k]:.3f} m" for k in inside))
+        return far
+
+    base_far = set(line("base", base))
+    for j in range(args.folds):
+        store = RunStore(args.store, "minimize", (), study_name=fold_study_name(j))
+        for i, (p, value) in enumerate(top_candidates(store, args.metric, args.top)):
+            far = line(f"fold {j + 1} #{i} (train {value:.4g})", params_from_dict(p))
+            base_d = screen.distances(base)
+            d = screen.distances(params_from_dict(p))
+            for k in far:
+                if k not in base_far:
+                    print(f"    farther, the base not: {frames[k].key} truth {truth[k]:.3f} m: "
+                          f"{_reading(d[k], truth[k])}, the base {_reading(base_d[k], truth[k])}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
