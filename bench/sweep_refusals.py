@@ -20,11 +20,10 @@ import argparse
 
 from uav_depth.cli.benchmark import machine_line
 from uav_depth.cli.commands.tune import safety_frames
-from uav_depth.core.disparity.near import max_disparity_px
 from uav_depth.core.params import DEFAULT_PARAMS, load_params, params_from_dict
 from uav_depth.tuning.frames import load_folds
 from uav_depth.tuning.metrics import branch_signed, is_farther
-from uav_depth.tuning.objective import FITNESS
+from uav_depth.tuning.objective import FITNESS, frame_ranger
 from uav_depth.tuning.safety import SafetyScreen
 from uav_depth.tuning.store import RunStore, fold_study_name
 from uav_depth.tuning.study import top_candidates
@@ -50,30 +49,29 @@ def main(argv: list[str] | None = None) -> int:
     screen = SafetyScreen(lambda sample: safety_frames(sample, args.sweep), base, folds[0][0])
     if not screen.active:
         raise SystemExit("no calibrated training frame: the tuner runs no safety sweep on this log")
-    frames = screen._sweep().frames
+    frames = screen.sweep().frames
     truth = [f.branch_distance_m for f in frames]
     s = screen.sample
     print(machine_line())
     print(f"safety sweep: {len(frames)} frames at {s.left.shape[1]}x{s.left.shape[0]}, f = {s.focal_px:.1f} px, "
           f"B = {s.baseline_m:.3f} m (the rig of {s.key})")
 
-    def line(name: str, params) -> list[int]:
+    def line(name: str, params) -> tuple[list[int], list[float | None]]:
+        """Print ``params``' counts on the sweep; (the frames it reads farther, its readings)."""
         d = screen.distances(params)
-        min_m = s.focal_px * s.baseline_m / max_disparity_px(params)
+        min_m = frame_ranger(s, params).limits.min_distance_m
         far = [k for k in range(len(frames)) if is_farther(d[k], truth[k])]
         inside = [k for k in range(len(frames)) if truth[k] < min_m and d[k] is not None]
         print(f"{name}: minimum range {min_m:.3f} m; farther than 2 %: {len(far)}; inside the minimum range "
               f"sent as a distance: {len(inside)}" + "".join(f"\n    {frames[k].key} truth {truth[k]:.3f} m: "
                                                              f"{d[k]:.3f} m" for k in inside))
-        return far
+        return far, d
 
-    base_far = set(line("base", base))
+    base_far, base_d = line("base", base)
     for j in range(args.folds):
         store = RunStore(args.store, "minimize", (), study_name=fold_study_name(j))
         for i, (p, value) in enumerate(top_candidates(store, args.metric, args.top)):
-            far = line(f"fold {j + 1} #{i} (train {value:.4g})", params_from_dict(p))
-            base_d = screen.distances(base)
-            d = screen.distances(params_from_dict(p))
+            far, d = line(f"fold {j + 1} #{i} (train {value:.4g})", params_from_dict(p))
             for k in far:
                 if k not in base_far:
                     print(f"    farther, the base not: {frames[k].key} truth {truth[k]:.3f} m: "

@@ -127,12 +127,17 @@ def _ref(fn: Callable[[np.ndarray, np.ndarray], float]) -> Callable[[FrameData, 
                                                          frame.reference, res.disparity))
 
 
-def branch_reading(frame: FrameData, res: DisparityResult, params: StereoParams) -> Measurement:
-    """The daemon's own ranging stage on this result: its whole reading (the distance, or why there is none)."""
+def frame_ranger(frame: FrameData, params: StereoParams) -> Ranger:
+    """The daemon's own ranging stage for ``params`` at ``frame``'s rig and region (its limits: ``.limits``)."""
     h, w = frame.left.shape[:2]
     cal = Calibration(focal_px=frame.focal_px, baseline_m=frame.baseline_m, width=w, height=h)
     roi = resolve_roi(frame.roi, w, h)
-    return Ranger(RangingConfig(roi=roi), cal, roi, params).measure(res)
+    return Ranger(RangingConfig(roi=roi), cal, roi, params)
+
+
+def branch_reading(frame: FrameData, res: DisparityResult, params: StereoParams) -> Measurement:
+    """The daemon's own ranging stage on this result: its whole reading (the distance, or why there is none)."""
+    return frame_ranger(frame, params).measure(res)
 
 
 def branch_distance(frame: FrameData, res: DisparityResult, params: StereoParams) -> float | None:

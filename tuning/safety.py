@@ -66,7 +66,8 @@ class SafetyScreen:
     def active(self) -> bool:
         return self.sample is not None
 
-    def _sweep(self) -> FrameSet:
+    def sweep(self) -> FrameSet:
+        """The sweep's frames, rendered when first asked for."""
         if self._frames is None:
             self.phase("the safety sweep: the base and each candidate about to win on synthetic branches from "
                        "inside the minimum range out to 3 m")
@@ -76,11 +77,11 @@ class SafetyScreen:
     def distances(self, params: StereoParams) -> list[float | None]:
         """What ``params`` reads on each sweep frame (None: no distance), read once per parameter set."""
         if params not in self._read:
-            self._read[params] = branch_distances(params, self._sweep())
+            self._read[params] = branch_distances(params, self.sweep())
         return self._read[params]
 
     def _verdict(self, params: StereoParams, rejecting: bool) -> FartherCheck:
-        frames = self._sweep().frames
+        frames = self.sweep().frames
         truths = [f.branch_distance_m for f in frames]
         base_d, tuned_d = self.distances(self.base), self.distances(params)
         nb, nt = (sum(is_farther(d, t) for d, t in zip(ds, truths)) for ds in (base_d, tuned_d))
