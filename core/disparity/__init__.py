@@ -30,6 +30,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import functools
+import math
 import warnings
 
 import cv2
@@ -37,9 +38,9 @@ import numpy as np
 
 from uav_depth.core.disparity.confidence import confidence_maps
 from uav_depth.core.disparity.fine import FineMatch, FineMatcher
-from uav_depth.core.disparity.near import NearCheck, max_disparity_px, near_params, textured
+from uav_depth.core.disparity.near import NearCheck, max_disparity_px, near_params, near_pad, pad_views, textured
 from uav_depth.core.disparity.match import Matchers, build_matchers, match_left, match_right, to_float
-from uav_depth.core.disparity.prepare import Prepared, check_pair, prepare
+from uav_depth.core.disparity.prepare import Prepared, check_pair, grey, prepare
 from uav_depth.core.disparity.result import DisparityResult, Laps
 from uav_depth.core.disparity.window import Window, search_span, window
 from uav_depth.core.errors import ParameterWarning
@@ -59,7 +60,7 @@ class DisparityPipeline:
     def __init__(self, params: StereoParams, refine: bool = True, near: bool = False, fine: bool = False):
         self.params = params
         self.refine = refine and params.wls.enabled
-        self._near = DisparityPipeline(near_params(params), refine=False) if near else None
+        self._near = _NearPass(params) if near else None
         # The fine pass only adds resolution: at compute.scale 1 the main match is already full resolution.
         self._fine = FineMatcher(params) if fine and params.compute.fine_pass else None
         self.matchers: Matchers = build_matchers(params)
@@ -83,12 +84,12 @@ class DisparityPipeline:
         if self._near is None:
             return res if fine is None else replace(res, fine=fine)
         laps = Laps()
-        near, nwin, nprep = self._near._run(left, right)
-        tex = None if nwin is None or nprep is None else functools.partial(_textured_map, nwin, nprep, left.shape[:2])
-        check = NearCheck(near.measured, max_disparity_px(self.params), tex)
+        near_measured, near_confidence, near_consistent, tex = self._near.run(left, right)
+        check = NearCheck(near_measured, max_disparity_px(self.params), tex)
         laps.lap("near")
         return DisparityResult(res.disparity, res.measured, res.confidence, res.warning,
-                               {**res.timings_ms, **laps.ms}, near=check, near_confidence=near.confidence,
+                               {**res.timings_ms, **laps.ms}, near=check, near_confidence=near_confidence,
+                               near_consistent=near_consistent,
                                fine=fine, lr_consistent=res.lr_consistent)
 
     def _run(self, left: np.ndarray, right: np.ndarray) -> tuple[DisparityResult, Window | None, Prepared | None]:
@@ -203,6 +204,64 @@ class DisparityPipeline:
     def compute(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
         """(H, W) float32 disparity in px of the left image, NaN where invalid."""
         return self.run(left, right).disparity
+
+
+class _NearPass:
+    """The near pass (:func:`.near.near_params`) of one frame size. Where its search does not fit beside the region
+    (:func:`.near.near_pad`), it matches the rows its window needs, grey, padded by a mirror each side; its maps
+    are put back at the input's rows and columns."""
+
+    def __init__(self, params: StereoParams):
+        self.params = near_params(params)
+        self._sizes: dict[tuple[int, int], tuple[slice | None, int, int, DisparityPipeline]] = {}
+
+    def _for(self, width: int, height: int) -> tuple[slice | None, int, int, "DisparityPipeline"]:
+        if (width, height) not in self._sizes:
+            pad_l, pad_r = near_pad(self.params, width, height)
+            if not (pad_l or pad_r):
+                self._sizes[(width, height)] = None, 0, 0, DisparityPipeline(self.params, refine=False)
+            else:
+                _, cy0, _, cy1 = window(self.params, width, height).crop
+                x0, y0, x1, y1 = self.params.compute.roi_pixels(width, height)
+                wp, hb = pad_l + width + pad_r, cy1 - cy0
+                params = self.params.replace(**{"compute.roi": ((x0 + pad_l) / wp, (y0 - cy0) / hb,
+                                                                (x1 + pad_l) / wp, (y1 - cy0) / hb)})
+                assert params.compute.roi_pixels(wp, hb) == (x0 + pad_l, y0 - cy0, x1 + pad_l, y1 - cy0)
+                self._sizes[(width, height)] = slice(cy0, cy1), pad_l, pad_r, DisparityPipeline(params, refine=False)
+        return self._sizes[(width, height)]
+
+    def run(self, left: np.ndarray, right: np.ndarray):
+        """(measured, confidence, left-right check, textured: a callable or None), each (H, W) at the input's
+        resolution (:class:`.result.DisparityResult`)."""
+        check_pair(left, right)
+        h, w = left.shape[:2]
+        rows, pad_l, pad_r, pipe = self._for(w, h)
+        if rows is None:
+            res, win, prep = pipe._run(left, right)
+            tex = None if win is None or prep is None else functools.partial(_textured_map, win, prep, (h, w))
+            return res.measured, res.confidence, res.lr_consistent, tex
+        left, right = pad_views(grey(left[rows]), grey(right[rows]), pad_l, pad_r)
+        res, win, prep = pipe._run(left, right)
+        cols = slice(pad_l, pad_l + w)
+        measured = _at_rows(res.measured[:, cols], rows, h, np.nan)
+        # A match whose partner lies left of the image (in the mirror) is no match: only columns left of the
+        # near search's end can have one.
+        reach = min(w, math.ceil(max_disparity_px(self.params)) + 1)
+        with np.errstate(invalid="ignore"):
+            band = measured[rows, :reach]
+            band[band > np.arange(reach, dtype=np.float32)] = np.nan
+        conf = None if res.confidence is None else _at_rows(res.confidence[:, cols], rows, h, 0.0)
+        lr = None if res.lr_consistent is None else _at_rows(res.lr_consistent[:, cols], rows, h, False)
+        tex = None if win is None or prep is None else (
+            lambda: _at_rows(_textured_map(win, prep, left.shape[:2])[:, cols], rows, h, False))
+        return measured, conf, lr, tex
+
+
+def _at_rows(band: np.ndarray, rows: slice, height: int, fill) -> np.ndarray:
+    """``band`` (the input's ``rows``) placed in a (``height``, W) map filled with ``fill`` elsewhere."""
+    out = np.full((height, band.shape[1]), fill, band.dtype)
+    out[rows] = band
+    return out
 
 
 def _upsample(win: Window, fn, *args, interpolation: int, margin: int = 0) -> np.ndarray:

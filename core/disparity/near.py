@@ -5,9 +5,12 @@ px). An object nearer than the minimum range this sets has a larger disparity,
 and SGBM then matches it to something else inside the search, i.e. *farther*
 (issue 11: branches at 0.12-0.26 m came back as 0.28-0.49 m). The **near pass**
 tells such a frame apart: the same SGBM on the region at a coarse scale (16 / d_max,
-at least 0.125) searching 48 matched px from just before the main search's largest disparity
-(to about four times it); pixels it matches confidently beyond the main search are
-direct evidence of a nearer object.
+at least 0.125) searching every disparity from 0 to at least 44 matched px past the main search's
+largest disparity (about four times it); pixels it matches confidently beyond the main search are
+direct evidence of a nearer object. It searches the main range too, so that a match beyond it must
+win against the one inside it: on a background that repeats about a tile's width away (a fence, a
+trellis, the renderer's tiles), a search of the near range alone finds the copy one period away
+and calls it near.
 
 Nearer still (a few centimetres) the object's other view lies outside the right
 image and nothing can be matched at all: the region is blank in both passes,
@@ -28,15 +31,15 @@ from typing import Callable
 import cv2
 import numpy as np
 
+from uav_depth.core.disparity.window import margins
 from uav_depth.core.params import StereoParams
 
-#: The near pass's search: 48 matched px from the main search's end, at a scale putting that end near 16.
+#: The near pass's scale puts the main search's end near this many matched px (not below NEAR_MIN_SCALE) ...
 NEAR_MIN_DISPARITY = 16
-NEAR_NUM_DISPARITIES = 48
 NEAR_MIN_SCALE = 0.125
-#: The near search starts this many matched px before the main search's end, so that an object just
-#: inside the main search is measured there and not piled at the near search's first disparity.
-NEAR_OVERLAP = 4
+#: ... and its search, from 0, reaches at least this many matched px past that end (rounded up to SGBM's
+#: multiple of 16): 64 disparities for the flight file and the manual baseline, about 4 x the main search.
+NEAR_BEYOND = 44
 
 
 @dataclass(frozen=True)
@@ -81,12 +84,43 @@ def max_disparity_px(params: StereoParams) -> float:
 
 def near_params(params: StereoParams) -> StereoParams:
     """The near pass: the main parameters, grey, at the scale where the main search ends near 16 matched
-    px (not below ``compute.scale``'s lower bound 0.125), searching 48 disparities from that end."""
+    px (not below ``compute.scale``'s lower bound 0.125), searching from 0 to at least NEAR_BEYOND past that
+    end (the module docstring says why from 0); its confidence at its own matched resolution
+    (``compute.wls_at`` says where WLS would smooth the main map: with ``input`` at 1/8 scale the left-right
+    tolerance was 0.19 px, and nearly every near match had confidence 0)."""
     d_max = max_disparity_px(params)
     scale = max(NEAR_MIN_SCALE, min(params.compute.scale, NEAR_MIN_DISPARITY / d_max))
     # Grey 3x3 blocks with OpenCV's penalties for them (8 and 32 x channels x block area): at this
     # coarse scale a wider block smooths the near object into its background.
-    return params.replace(**{"compute.scale": scale, "compute.grey": True,
-                             "sgbm.min_disparity": max(0, int(math.floor(d_max * scale)) - NEAR_OVERLAP),
-                             "sgbm.num_disparities": NEAR_NUM_DISPARITIES,
+    return params.replace(**{"compute.scale": scale, "compute.grey": True, "compute.wls_at": "matched",
+                             "sgbm.min_disparity": 0,
+                             "sgbm.num_disparities": -(-(int(math.floor(d_max * scale)) + NEAR_BEYOND) // 16) * 16,
                              "sgbm.block_size": 3, "sgbm.p1": 72, "sgbm.p2": 288})
+
+
+def near_pad(near: StereoParams, width: int, height: int) -> tuple[int, int]:
+    """Input columns to add left and right of a ``width`` x ``height`` frame so that the near pass (``near``:
+    :func:`near_params`) answers its whole region with the left-right check, (0, 0) when its window fits.
+
+    SGBM answers a column only when the whole search lies inside the image left of it (and the right matcher
+    only when it lies right of it), so the near pass, which searches up to about four times the main search's
+    largest disparity at a coarse scale, answered only part of the region on a frame narrower than about 3.75
+    times that disparity, and nothing on a narrower one (issue 11; docs/ranging.md, *Too close*). Padding the
+    views (:func:`pad_views`) lets it search every column; a match whose partner lies in the padding is dropped.
+    Rounded up to whole coarse pixels of 1 / scale input px when that is whole."""
+    x0, _, x1, _ = near.compute.roi_pixels(width, height)
+    need_l, need_r, _ = margins(near)
+    pad_l, pad_r = max(0, need_l - x0), max(0, need_r - (width - x1))
+    k = round(1.0 / near.compute.scale)
+    if k > 1 and abs(k * near.compute.scale - 1.0) < 1e-9:
+        pad_l, pad_r = -(-pad_l // k) * k, -(-pad_r // k) * k
+    return pad_l, pad_r
+
+
+def pad_views(left: np.ndarray, right: np.ndarray, pad_l: int, pad_r: int) -> tuple[np.ndarray, np.ndarray]:
+    """``left`` and ``right`` with ``pad_l`` / ``pad_r`` columns each side, each view mirrored at its edges
+    (OpenCV's BORDER_REFLECT_101). A mirror continues the image's texture, so blocks at the edge see no seam:
+    padded with noise instead, Midd1's near pass matched 2-5 % of its region confidently to partners within 37 px
+    of the edge, a false "too close" (docs/ranging.md). A match into the mirror is no match (the pipeline's
+    near pass drops it)."""
+    return tuple(cv2.copyMakeBorder(v, 0, 0, pad_l, pad_r, cv2.BORDER_REFLECT_101) for v in (left, right))

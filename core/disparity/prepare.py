@@ -25,6 +25,13 @@ def check_pair(left: np.ndarray, right: np.ndarray) -> None:
         raise FrameError(f"left and right images must have the same shape, but got {left.shape} and {right.shape}")
 
 
+def grey(img: np.ndarray) -> np.ndarray:
+    """``img`` as one channel: BGR converted (OpenCV's weights), a single channel taken as it is."""
+    if img.ndim == 2:
+        return img
+    return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.shape[2] == 3 else img[..., 0]
+
+
 @dataclass(frozen=True)
 class Prepared:
     """The window's images: ``left``/``right`` cropped (grey if asked) at input resolution (WLS's
@@ -40,11 +47,8 @@ def prepare(compute: ComputeParams, win: Window, left: np.ndarray, right: np.nda
     """Crop ``win.crop`` out of a checked pair, grey if ``compute.grey``, resized to ``win.matched``."""
     cx0, cy0, cx1, cy1 = win.crop
     lc, rc = left[cy0:cy1, cx0:cx1], right[cy0:cy1, cx0:cx1]
-    if compute.grey and lc.ndim == 3:
-        if lc.shape[2] == 3:
-            lc, rc = cv2.cvtColor(lc, cv2.COLOR_BGR2GRAY), cv2.cvtColor(rc, cv2.COLOR_BGR2GRAY)
-        else:
-            lc, rc = lc[..., 0], rc[..., 0]
+    if compute.grey:
+        lc, rc = grey(lc), grey(rc)
     if win.resized:
         # INTER_AREA averages the pixels it drops: no aliasing of fine bark texture.
         lm = cv2.resize(lc, win.matched, interpolation=cv2.INTER_AREA)

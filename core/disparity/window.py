@@ -84,6 +84,16 @@ def search_span(params: StereoParams) -> int:
     return max(0, sg.min_disparity + sg.num_disparities) + max(0, -sg.min_disparity)
 
 
+def margins(params: StereoParams) -> tuple[int, int, int]:
+    """Input px of image a window wants left, right, and above and below the region (:func:`window`)."""
+    sg, cp = params.sgbm, params.compute
+    context = max(CONTEXT_PX, sg.block_size // 2 + 1)
+    band = max(0, sg.min_disparity + sg.num_disparities)
+    left = math.ceil((band + context) / cp.scale)
+    right = math.ceil((max(0, -sg.min_disparity) + context + (band if params.wls.enabled else 0)) / cp.scale)
+    return left, right, math.ceil(context / cp.scale)
+
+
 def window(params: StereoParams, width: int, height: int) -> Window:
     """The crop that holds ``compute.roi`` plus the disparity search margin, and its matched size.
 
@@ -105,10 +115,7 @@ def window(params: StereoParams, width: int, height: int) -> Window:
     sg, cp = params.sgbm, params.compute
     rx0, ry0, rx1, ry1 = cp.roi_pixels(width, height)
     context = max(CONTEXT_PX, sg.block_size // 2 + 1)
-    band = max(0, sg.min_disparity + sg.num_disparities)
-    left = math.ceil((band + context) / cp.scale)
-    right = math.ceil((max(0, -sg.min_disparity) + context + (band if params.wls.enabled else 0)) / cp.scale)
-    vert = math.ceil(context / cp.scale)
+    left, right, vert = margins(params)
     crop = (max(0, rx0 - left), max(0, ry0 - vert), min(width, rx1 + right), min(height, ry1 + vert))
     k = round(1.0 / cp.scale)
     if k > 1 and abs(k * cp.scale - 1.0) < 1e-9:

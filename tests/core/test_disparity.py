@@ -492,3 +492,57 @@ def test_the_flight_maps_under_the_region_equal_the_whole_crops_resize(small_fra
     conf = np.clip(conf[win.inner()] / 255.0, 0.0, 1.0)
     assert np.array_equal(res.measured[win.outer()], meas, equal_nan=True)
     assert np.allclose(res.confidence[win.outer()], conf, atol=1e-5)
+
+
+# The near pass on frames narrower than its search (issue 11: the near pass searches up to about four times the
+# main search's largest disparity at a coarse scale; SGBM answers a column only when the whole search fits beside it).
+
+def _near_frame(width, height, focal_px, baseline_m, distance_m):
+    from uav_depth.sim.sweep import VARIANTS, at_rig, render_with_truth
+    cfg = at_rig(VARIANTS["plain"](distance_m, 12), width, height, focal_px, baseline_m)
+    return render_with_truth(cfg)
+
+
+def test_the_near_pass_sees_a_branch_inside_the_minimum_range_on_a_frame_narrower_than_its_search():
+    """A Middlebury-like rig (443 x 370, f = 1247 px, B = 0.16 m): the manual baseline's 128 disparities end at
+    1.571 m, and a branch at 1.40 m (142.5 px) is inside it. The near pass's window (about 4 x 127 px of search
+    left of the region at 1/8 scale) is wider than the frame: unpadded, it matched nothing at all."""
+    from uav_depth.core.disparity import flight_pipeline
+    f, b = 1246.67, 0.16
+    left, right, truth_m, (x0, y0, x1, y1) = _near_frame(443, 370, f, b, 1.40)
+    res = flight_pipeline(DEFAULT_PARAMS).run(left, right)
+    nd = res.near.disparity[y0:y1, x0:x1]
+    beyond = np.isfinite(nd) & (nd > res.near.max_disparity_px)
+    assert np.isfinite(nd).mean() > 0.8
+    assert beyond.mean() > 0.25                     # the branch covers about a third of the region
+    assert np.percentile(nd[beyond], 75) == pytest.approx(f * b / truth_m, rel=0.03)
+    assert not (nd > np.arange(x0, x1)).any()       # no match into the padding: its partner is off the image
+
+
+def test_the_near_pass_answers_the_whole_region_of_the_flight_rig():
+    """At 1280 x 720 the flight file's near window needs 536 px left of the region, which starts at 427: the
+    region's left 109 px were unanswered by the near pass. Padded, its near matches cover them as the rest."""
+    from uav_depth.core.disparity import flight_pipeline
+    from uav_depth.core.params import load_params
+    from pathlib import Path
+    params = load_params(Path(__file__).parents[2] / "deploy" / "params-flight.yaml")
+    left, right, truth_m, (x0, y0, x1, y1) = _near_frame(1280, 720, 700.0, 0.063, 0.20)
+    res = flight_pipeline(params).run(left, right)
+    nd = res.near.disparity[y0:y1, x0:x1]
+    edge, rest = np.isfinite(nd[:, :100]).mean(), np.isfinite(nd[:, 100:]).mean()
+    assert edge > 0.5 and edge == pytest.approx(rest, abs=0.35)
+
+
+def test_the_near_pass_pads_nothing_where_its_window_fits_and_keeps_the_input_columns():
+    from uav_depth.core.disparity.near import near_pad, near_params
+    from uav_depth.core.params import load_params
+    from pathlib import Path
+    params = load_params(Path(__file__).parents[2] / "deploy" / "params-flight.yaml")
+    near = near_params(params)
+    assert near_pad(near, 4000, 720) == (0, 0)
+    pad_l, pad_r = near_pad(near, 1280, 720)
+    assert pad_l > 0 and pad_r > 0 and pad_l % 8 == 0
+    from uav_depth.core.disparity import flight_pipeline
+    left, right, _, _ = _near_frame(1280, 720, 700.0, 0.063, 1.0)
+    res = flight_pipeline(params).run(left, right)
+    assert res.near.disparity.shape == res.near_confidence.shape == left.shape[:2]

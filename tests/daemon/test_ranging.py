@@ -217,6 +217,40 @@ def test_without_the_near_pass_the_same_frame_is_not_reported_as_a_distance_eith
     assert not m.valid and m.too_close and m.guarded
 
 
+def test_on_a_frame_narrower_than_the_near_pass_reaches_a_branch_inside_the_minimum_range_is_too_close():
+    """The real pairs' rig (443 x 370, f = 1247 px, B = 0.16 m; 128 disparities end at 1.571 m). The near pass's
+    search did not fit the frame, so it matched nothing, and parameters the tuner proposed on the real pairs (seed
+    2, fold 1's best) sent this 3 cm branch at 1.40 m as a valid 1.635 m (docs/ranging.md, *Too close*)."""
+    from uav_depth.core.disparity import flight_pipeline
+    from uav_depth.sim.sweep import VARIANTS, at_rig, render_with_truth
+
+    proposed = DEFAULT_PARAMS.replace(**{"sgbm.block_size": 3, "sgbm.p1": 68, "sgbm.p2": 1027,
+                                         "sgbm.disp12_max_diff": 0, "sgbm.pre_filter_cap": 117,
+                                         "sgbm.uniqueness_ratio": 8, "sgbm.speckle_window_size": 60,
+                                         "sgbm.speckle_range": 6})
+    f = 1246.67
+    left, right, truth_m, roi = render_with_truth(at_rig(VARIANTS["plain"](1.40, 12), 443, 370, f, 0.16))
+    calib = Calibration(focal_px=f, baseline_m=0.16, width=443, height=370)
+    for params in (proposed, DEFAULT_PARAMS):
+        r = Ranger(RangingConfig(), calib, roi, params)
+        assert truth_m < r.limits.min_distance_m == pytest.approx(1.571, abs=1e-3)
+        m = r.measure(flight_pipeline(params).run(left, right))
+        assert m.too_close and m.distance_m is None and "near pass" in m.reason, m
+
+
+def test_the_near_pass_confidence_does_not_depend_on_where_wls_would_filter():
+    """compute.wls_at says where WLS would smooth the main map (the tuner's faithful mode). The near pass has no
+    WLS: at its 1/8 scale, 'input' made its left-right tolerance 0.19 px and its depth-edge roll-off 63 x
+    steeper, so the manual baseline's near matches had no confidence at all."""
+    from uav_depth.core.disparity import flight_pipeline
+
+    cfg, frame = _flight_frame(0.20, 0)
+    a = flight_pipeline(DEFAULT_PARAMS).run(frame.left, frame.right)
+    b = flight_pipeline(DEFAULT_PARAMS.replace(**{"compute.wls_at": "matched"})).run(frame.left, frame.right)
+    np.testing.assert_array_equal(a.near_confidence, b.near_confidence)
+    assert (a.near_confidence >= 0.5).mean() > 0.05
+
+
 def test_the_flight_pipeline_still_ranges_a_branch_just_outside_the_minimum_range():
     from uav_depth.core.disparity import flight_pipeline
 
