@@ -632,7 +632,12 @@ class Ranger:
             near_ok = np.isfinite(nd)
             if result.near_confidence is not None:
                 near_ok &= result.near_confidence[y0:y1, x0:x1] >= cfg.min_confidence
-            beyond = near_ok & (nd > self.d_max)
+            # Rules 1 and 3 on the near pass's left-right check alone: at its coarse scale a branch a few pixels
+            # wide is all depth edge, and the confidence's roll-off weighs it 0 (docs/ranging.md, rule 1).
+            near_found = np.isfinite(nd)
+            if result.near_consistent is not None:
+                near_found &= result.near_consistent[y0:y1, x0:x1]
+            beyond = near_found & (nd > self.d_max)
         share = float(beyond.mean()) if beyond.size else 0.0
         if share >= NEAR_BEYOND_SHARE:
             b = nd[beyond]

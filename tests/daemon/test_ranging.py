@@ -238,6 +238,52 @@ def test_on_a_frame_narrower_than_the_near_pass_reaches_a_branch_inside_the_mini
         assert m.too_close and m.distance_m is None and "near pass" in m.reason, m
 
 
+def test_a_background_that_repeats_inside_the_near_search_is_not_read_as_too_close():
+    """`uav-depth bench`'s fourth nominal frame: a branch at 0.91 m before the renderer's tiled background. A near
+    pass that searched only beyond the main search found the tile's copy one period away (about 315 px against
+    the true 7.7) on 2.9 % of the region where the main pass had no confident match, and called the frame too
+    close. Searching from 0, the true match inside the main search wins."""
+    from uav_depth.core.disparity import flight_pipeline
+
+    flight = load_params(FLIGHT_FILE)
+    cfg = SceneConfig(branch_distance_m=0.9090909090909091, branch_radius_m=0.04294568605940011, n_branches=2,
+                      trunk_offset_m=0.35, background_distance_m=5.726907133961082, brightness=1.8296408225383942,
+                      contrast=0.7104106802038302, noise_std=0.7080517201525486, blur_sigma=1.0,
+                      texture_scale=1.313251813286842, color=True, seed=463327991)
+    frame = Scene(cfg).render(rng=np.random.default_rng(3))
+    r = Ranger(RangingConfig(), cfg.calibration, default_roi(cfg.width, cfg.height), flight)
+    res = flight_pipeline(flight).run(frame.left, frame.right)
+    m = r.measure(res)
+    assert not m.too_close, m.reason
+    truth = frame.nearest_branch_distance(default_roi(cfg.width, cfg.height))
+    assert m.distance_m == pytest.approx(truth, rel=0.03)
+    x0, y0, x1, y1 = r.roi
+    nd = res.near.disparity[y0:y1, x0:x1]
+    assert np.isfinite(nd[:, :80]).mean() > 0.5          # the columns a near search that did not fit left blank
+
+
+def test_a_thin_branch_just_inside_the_minimum_range_is_too_close_on_the_near_pass_left_right_check():
+    """The manual baseline's `varied` seed 0 (a 1.8 cm branch, bright exposure) at 0.33 m, 5 % inside its minimum
+    range of 0.347 m. At the near pass's 1/8 scale the branch is about 5 px wide, all depth edge: its matches
+    beyond the search are left-right consistent on about 11 % of the region, but the confidence's depth-edge
+    roll-off weighs them 0, and judged on that confidence the frame went out as a valid 0.55 m."""
+    from uav_depth.core.disparity import flight_pipeline
+    from uav_depth.sim.sweep import VARIANTS, render_with_truth
+
+    left, right, truth_m, roi = render_with_truth(VARIANTS["varied"](0.33, 0))
+    cfg = VARIANTS["varied"](0.33, 0)
+    r = Ranger(RangingConfig(), cfg.calibration, roi, DEFAULT_PARAMS)
+    assert truth_m < r.limits.min_distance_m
+    res = flight_pipeline(DEFAULT_PARAMS).run(left, right)
+    m = r.measure(res)
+    assert m.too_close and m.distance_m is None and "near pass" in m.reason, m
+    x0, y0, x1, y1 = roi
+    with np.errstate(invalid="ignore"):
+        beyond = res.near_consistent[y0:y1, x0:x1] & (res.near.disparity[y0:y1, x0:x1] > r.d_max)
+    assert beyond.mean() > 0.05
+    assert (res.near_confidence[y0:y1, x0:x1][beyond] >= RangingConfig().min_confidence).mean() < 0.1
+
+
 def test_the_near_pass_confidence_does_not_depend_on_where_wls_would_filter():
     """compute.wls_at says where WLS would smooth the main map (the tuner's faithful mode). The near pass has no
     WLS: at its 1/8 scale, 'input' made its left-right tolerance 0.19 px and its depth-edge roll-off 63 x
