@@ -66,8 +66,9 @@ PIXEL_LOCKING_SIGMA_PX = 1.0 / math.sqrt(12.0)
 #: The largest sigma DISTANCE_SENSOR's ``covariance`` (uint8 cm^2, 255 = unknown) can carry: 15.9 cm.
 WIRE_SIGMA_MAX_M = math.sqrt(254.0) / 100.0
 #: Too close by the near pass (:mod:`uav_depth.core.disparity.near`): at least this share of the ROI
-#: matched confidently beyond the main search. Measured with the flight file (docs/ranging.md):
-#: branches at 0.08-0.27 m give 0.21-0.74, frames with nothing nearer than the minimum range at most 0.06.
+#: matched beyond the main search, left-right consistent (since 2026-12-05; confident before). Measured with
+#: the flight file (docs/ranging.md): branches at 0.08-0.27 m give 0.21-0.74, frames with nothing nearer than
+#: the minimum range at most 0.06.
 NEAR_BEYOND_SHARE = 0.15
 #: ... or at least this share matched beyond the main search where the main pass has no confident match, if
 #: those are at least NEAR_UNCONFIRMED_RATIO of the near pass's matches beyond it (a twig in front; false near
@@ -76,6 +77,8 @@ NEAR_BEYOND_SHARE = 0.15
 #: minimum range at most 0.9 % at a ratio above 0.75 (1.6 % at 0.36); the manual baseline's 1.8 cm branch at
 #: 0.30 m (bright exposure) 1.9 % at 1.0, sent as a valid 0.53 m under the 2 % this was before 2026-12-04.
 #: 1.5 % of the region is 2.4 cm^2 at the flight file's minimum range, over a significant object's 2 cm^2.
+#: Kept when the near pass began to search from 0 and these counted left-right-consistent matches
+#: (2026-12-05): needles then reach 1.6-2.4 % within 1.42 x the minimum range (docs/ranging.md).
 NEAR_UNCONFIRMED_SHARE = 0.015
 NEAR_UNCONFIRMED_RATIO = 0.75
 #: A frame that measures (almost) nothing right after a too-close one is still too close: the object

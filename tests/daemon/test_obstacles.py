@@ -149,7 +149,11 @@ def test_daemon_sends_it_beside_distance_sensor(tmp_path, rx):
     params = tmp_path / "params.yaml"
     save_params(FLY.replace(**{"wls.enabled": False}), params)
     config = {"source": {"kind": "replay", "path": str(tmp_path / "session"), "rate_hz": 3, "loop": True},
-              "params_file": str(params), "ranging": {"max_age_ms": 499, "max_distance_m": 7.0},
+              "params_file": str(params),
+              # On the 25 deg post (1.5 m away, z = 1.36 m): the central third holds only a sliver of the -20 deg one,
+              # "no measurement" (quality 18). Before 2026-12-05 the near pass, without a left-right check when WLS
+              # is off, read every region of this scene as too close, and that is what went out.
+              "ranging": {"max_age_ms": 499, "max_distance_m": 7.0, "roi": [455, 140, 510, 220]},
               "mavlink": {"url": f"udpout:127.0.0.1:{rx.port}", "rate_hz": 10},
               "obstacle_distance": {"enabled": True, "rate_hz": 2}}
     (tmp_path / "run.yaml").write_text(yaml.safe_dump(config))
@@ -157,7 +161,9 @@ def test_daemon_sends_it_beside_distance_sensor(tmp_path, rx):
                             stdout=subprocess.DEVNULL, stderr=open(tmp_path / "stderr", "w"))
     try:
         msgs = rx.wait_for("OBSTACLE_DISTANCE", timeout=120, count=2)
-        assert rx.of("DISTANCE_SENSOR")
+        ds = rx.wait_for("DISTANCE_SENSOR", timeout=30)
+        z = 1.5 * math.cos(math.radians(25.0))
+        assert all(abs(m.current_distance / 100 - z) <= 0.03 * z for m in ds), [m.current_distance for m in ds]
     finally:
         proc.terminate()
         code = proc.wait(20)
