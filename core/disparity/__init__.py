@@ -259,8 +259,10 @@ class _NearPass:
 
 def _at_rows(band: np.ndarray, rows: slice, height: int, fill) -> np.ndarray:
     """``band`` (the input's ``rows``) placed in a (``height``, W) map filled with ``fill`` elsewhere."""
-    out = np.full((height, band.shape[1]), fill, band.dtype)
+    out = np.empty((height, band.shape[1]), band.dtype)
+    out[:rows.start] = fill
     out[rows] = band
+    out[rows.stop:] = fill
     return out
 
 
