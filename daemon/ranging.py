@@ -632,9 +632,6 @@ class Ranger:
         cfg = self.config
         nd = near.disparity[y0:y1, x0:x1]
         with np.errstate(invalid="ignore"):
-            near_ok = np.isfinite(nd)
-            if result.near_confidence is not None:
-                near_ok &= result.near_confidence[y0:y1, x0:x1] >= cfg.min_confidence
             # Rules 1 and 3 on the near pass's left-right check alone: at its coarse scale a branch a few pixels
             # wide is all depth edge, and the confidence's roll-off weighs it 0 (docs/ranging.md, rule 1).
             near_found = np.isfinite(nd)
@@ -667,7 +664,13 @@ class Ranger:
                 return (f"the near pass matches {u_share:.1%} of the ROI at disparities {np.median(b):.0f} px "
                         f"(median), beyond the search's {self.d_max:.0f} px, where the main pass matches nothing "
                         f"confidently: nearer than {self.limits.min_distance_m:.3f} m")
-        if near.textured is None or near_ok.mean() >= BLANK_VALID_FRACTION:
+        if near.textured is None:
+            return None
+        # Rule 4 on the near pass's confident matches (docs/ranging.md, rule 1 says why not its left-right check).
+        near_ok = np.isfinite(nd)
+        if result.near_confidence is not None:
+            near_ok &= result.near_confidence[y0:y1, x0:x1] >= cfg.min_confidence
+        if near_ok.mean() >= BLANK_VALID_FRACTION:
             return None
         matched = near_ok | (main_matched() if main is None else main)
         m_all = float(matched.mean())

@@ -520,8 +520,9 @@ def test_the_near_pass_sees_a_branch_inside_the_minimum_range_on_a_frame_narrowe
 
 
 def test_the_near_pass_answers_the_whole_region_of_the_flight_rig():
-    """At 1280 x 720 the flight file's near window needs 536 px left of the region, which starts at 427: the
-    region's left 109 px were unanswered by the near pass. Padded, its near matches cover them as the rest."""
+    """At 1280 x 720 the flight file's near search did not fit left of the region: unpadded, the near pass
+    answered a column only from 504 px (63 coarse px), and the region's left 78 columns were unanswered.
+    Padded, its near matches cover them as the rest."""
     from uav_depth.core.disparity import flight_pipeline
     from uav_depth.core.params import load_params
     from pathlib import Path
