@@ -667,12 +667,15 @@ class Ranger:
         if near.textured is None:
             return None
         # Rule 4 on the near pass's confident matches (docs/ranging.md, rule 1 says why not its left-right check).
-        near_ok = np.isfinite(nd)
-        if result.near_confidence is not None:
-            near_ok &= result.near_confidence[y0:y1, x0:x1] >= cfg.min_confidence
-        if near_ok.mean() >= BLANK_VALID_FRACTION:
+        # The main pass's alone first: when they already pass, so does the union, and the near pass's confidence
+        # (computed when asked for) is not needed.
+        main = main_matched() if main is None else main
+        if main.mean() >= BLANK_VALID_FRACTION:
             return None
-        matched = near_ok | (main_matched() if main is None else main)
+        near_ok = np.isfinite(nd)
+        if near.confidence is not None:
+            near_ok &= near.confidence()[y0:y1, x0:x1] >= cfg.min_confidence
+        matched = near_ok | main
         m_all = float(matched.mean())
         if m_all >= BLANK_VALID_FRACTION:
             return None

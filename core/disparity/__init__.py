@@ -32,6 +32,7 @@ from dataclasses import replace
 import functools
 import math
 import warnings
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -55,11 +56,16 @@ class DisparityPipeline:
     run skips the smoothing's cost. ``measured`` and ``confidence`` do not depend
     on it. Not thread-safe (OpenCV matcher objects keep state): build one per
     thread or process. Building is cheap (well under a millisecond).
+
+    ``lazy_confidence`` (the near pass's own pipeline): ``_run`` computes the left-right check and leaves the
+    confidence's depth-edge weights, most of its cost, to a callable it returns beside the result.
     """
 
-    def __init__(self, params: StereoParams, refine: bool = True, near: bool = False, fine: bool = False):
+    def __init__(self, params: StereoParams, refine: bool = True, near: bool = False, fine: bool = False,
+                 lazy_confidence: bool = False):
         self.params = params
         self.refine = refine and params.wls.enabled
+        self._lazy_confidence = lazy_confidence
         self._near = _NearPass(params) if near else None
         # The fine pass only adds resolution: at compute.scale 1 the main match is already full resolution.
         self._fine = FineMatcher(params) if fine and params.compute.fine_pass else None
@@ -79,35 +85,37 @@ class DisparityPipeline:
         outside ``compute.roi`` disparities are NaN and confidence is 0. A window
         too narrow for the disparity search gives all-NaN maps (nothing matched).
         """
-        res, _, _ = self._run(left, right)
+        res, _, _, _ = self._run(left, right)
         fine = None if self._fine is None or res.warning else functools.partial(self._fine.match, left, right)
         if self._near is None:
             return res if fine is None else replace(res, fine=fine)
         laps = Laps()
         near_measured, near_confidence, near_consistent, tex = self._near.run(left, right)
-        check = NearCheck(near_measured, max_disparity_px(self.params), tex)
+        check = NearCheck(near_measured, max_disparity_px(self.params), tex, near_confidence)
         laps.lap("near")
         return DisparityResult(res.disparity, res.measured, res.confidence, res.warning,
-                               {**res.timings_ms, **laps.ms}, near=check, near_confidence=near_confidence,
-                               near_consistent=near_consistent,
+                               {**res.timings_ms, **laps.ms}, near=check, near_consistent=near_consistent,
                                fine=fine, lr_consistent=res.lr_consistent)
 
-    def _run(self, left: np.ndarray, right: np.ndarray) -> tuple[DisparityResult, Window | None, Prepared | None]:
-        """One pass of the stages; also the window and prepared images (None when nothing was matched)."""
+    def _run(self, left: np.ndarray, right: np.ndarray) -> tuple[DisparityResult, Window | None, Prepared | None,
+                                                                 Callable[[], np.ndarray] | None]:
+        """One pass of the stages; also the window and prepared images (None when nothing was matched) and,
+        with ``lazy_confidence``, a callable that computes the confidence map the result leaves None (else
+        None)."""
         laps = Laps()
         check_pair(left, right)
         h, w = left.shape[:2]
         if self._overflow is not None:
             warnings.warn(self._overflow, ParameterWarning, stacklevel=2)
             empty = np.full((h, w), np.nan, np.float32)
-            return DisparityResult(empty, empty.copy(), None, self._overflow), None, None
+            return DisparityResult(empty, empty.copy(), None, self._overflow), None, None, None
         win = window(self.params, w, h)
         conf_full = None if self.right_matcher is None else np.zeros((h, w), np.float32)
         measured = np.full((h, w), np.nan, np.float32)
         if win.matched[0] <= search_span(self.params):    # narrower than the search: nothing can be matched
             laps.lap("prepare")
             return DisparityResult(np.full((h, w), np.nan, np.float32), measured, conf_full,
-                                   timings_ms=laps.ms), None, None
+                                   timings_ms=laps.ms), None, None, None
         prep = prepare(self.params.compute, win, left, right)
         laps.lap("prepare")
         left16 = self._match_left(win, prep)
@@ -115,23 +123,30 @@ class DisparityPipeline:
         measured[win.outer()] = self._measured(win, left16)
         if self.right_matcher is None:
             laps.lap("assemble")
-            return DisparityResult(measured, measured, None, timings_ms=laps.ms), win, prep
+            return DisparityResult(measured, measured, None, timings_ms=laps.ms), win, prep, None
         right16 = match_right(self.matchers, prep.left_m, prep.right_m)
         laps.lap("match_right")
-        conf, lr = self._confidence(win, left16, right16)
-        conf_full[win.outer()] = np.clip(conf * np.float32(1.0 / 255.0), 0.0, 1.0)
+        conf, lr = self._confidence(win, left16, right16, weights=not self._lazy_confidence)
+        later = None
+        if conf is None:
+            conf_full = None
+            later = functools.partial(self._confidence_map, win, left16, right16, (h, w))
+        else:
+            _place_confidence(conf_full, win, conf)
         lr_full = np.zeros((h, w), bool)
         lr_full[win.outer()] = lr > 0
         laps.lap("confidence")
         if not self.refine:
             laps.lap("assemble")
-            return DisparityResult(measured, measured, conf_full, timings_ms=laps.ms, lr_consistent=lr_full), win, prep
+            return (DisparityResult(measured, measured, conf_full, timings_ms=laps.ms, lr_consistent=lr_full),
+                    win, prep, later)
         filt = self._refine(win, prep, left16, right16)
         laps.lap("wls")
         disparity = np.full((h, w), np.nan, np.float32)
         disparity[win.outer()] = filt[win.inner()]
         laps.lap("assemble")
-        return DisparityResult(disparity, measured, conf_full, timings_ms=laps.ms, lr_consistent=lr_full), win, prep
+        return (DisparityResult(disparity, measured, conf_full, timings_ms=laps.ms, lr_consistent=lr_full),
+                win, prep, later)
 
     def _match_left(self, win: Window, prep: Prepared) -> np.ndarray:
         """The left matcher over the columns it needs (:attr:`Window.left_width`), at the crop's matched
@@ -160,25 +175,35 @@ class DisparityPipeline:
     def _wls_at_matched(self, win: Window) -> bool:
         return self.params.compute.wls_at == "matched" or not win.resized
 
-    def _confidence(self, win: Window, left16: np.ndarray, right16: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _confidence_map(self, win: Window, left16: np.ndarray, right16: np.ndarray,
+                        shape: tuple[int, int]) -> np.ndarray:
+        """The (H, W) 0..1 confidence map of a run (``lazy_confidence``: computed when asked for)."""
+        full = np.zeros(shape, np.float32)
+        _place_confidence(full, win, self._confidence(win, left16, right16)[0])
+        return full
+
+    def _confidence(self, win: Window, left16: np.ndarray, right16: np.ndarray,
+                    weights: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
         """0..255 confidence under the region, as WLS computes it for the guide it would be given, and the
-        left-right check alone (uint8 0/1, :func:`.confidence.confidence_maps`)."""
+        left-right check alone (uint8 0/1, :func:`.confidence.confidence_maps`); ``weights=False``: the
+        check alone, (None, check)."""
         # WLS given the full-resolution guide scales its threshold and roll-off by the width ratio.
         rf = 1.0 if self._wls_at_matched(win) else float(np.float32(win.matched[0]) / np.float32(win.crop_size[0]))
         sg = self.params.sgbm
         if not win.resized:
             ys, xs = win.inner()
-            conf, lr = confidence_maps(left16, right16, sg, rf, cols=(xs.start, xs.stop))
-            return conf[ys, xs], lr[ys, xs]
+            conf, lr = confidence_maps(left16, right16, sg, rf, cols=(xs.start, xs.stop), weights=weights)
+            return None if conf is None else conf[ys, xs], lr[ys, xs]
         if win.factor is None:
-            conf, lr = confidence_maps(left16, right16, sg, rf)
-            return (cv2.resize(conf, win.crop_size, interpolation=cv2.INTER_LINEAR)[win.inner()],
+            conf, lr = confidence_maps(left16, right16, sg, rf, weights=weights)
+            up = None if conf is None else cv2.resize(conf, win.crop_size, interpolation=cv2.INTER_LINEAR)
+            return (None if up is None else up[win.inner()],
                     cv2.resize(lr, win.crop_size, interpolation=cv2.INTER_NEAREST)[win.inner()])
         # Linear: one matched pixel more each side, so that the sub-block's border is never interpolated.
         # The check alone: nearest, as the measured values it belongs to.
         x0, _, x1, _ = win.inner_matched(margin=1)
-        conf, lr = confidence_maps(left16, right16, sg, rf, cols=(x0, x1))
-        return (_upsample(win, lambda: conf, interpolation=cv2.INTER_LINEAR, margin=1),
+        conf, lr = confidence_maps(left16, right16, sg, rf, cols=(x0, x1), weights=weights)
+        return (None if conf is None else _upsample(win, lambda: conf, interpolation=cv2.INTER_LINEAR, margin=1),
                 _upsample(win, lambda: lr, interpolation=cv2.INTER_NEAREST, margin=1))
 
     def _refine(self, win: Window, prep: Prepared, left16: np.ndarray, right16: np.ndarray) -> np.ndarray:
@@ -219,7 +244,8 @@ class _NearPass:
         if (width, height) not in self._sizes:
             pad_l, pad_r = near_pad(self.params, width, height)
             if not (pad_l or pad_r):
-                self._sizes[(width, height)] = None, 0, 0, DisparityPipeline(self.params, refine=False)
+                self._sizes[(width, height)] = None, 0, 0, DisparityPipeline(self.params, refine=False,
+                                                                            lazy_confidence=True)
             else:
                 _, cy0, _, cy1 = window(self.params, width, height).crop
                 x0, y0, x1, y1 = self.params.compute.roi_pixels(width, height)
@@ -227,21 +253,23 @@ class _NearPass:
                 params = self.params.replace(**{"compute.roi": ((x0 + pad_l) / wp, (y0 - cy0) / hb,
                                                                 (x1 + pad_l) / wp, (y1 - cy0) / hb)})
                 assert params.compute.roi_pixels(wp, hb) == (x0 + pad_l, y0 - cy0, x1 + pad_l, y1 - cy0)
-                self._sizes[(width, height)] = slice(cy0, cy1), pad_l, pad_r, DisparityPipeline(params, refine=False)
+                self._sizes[(width, height)] = (slice(cy0, cy1), pad_l, pad_r,
+                                                DisparityPipeline(params, refine=False, lazy_confidence=True))
         return self._sizes[(width, height)]
 
     def run(self, left: np.ndarray, right: np.ndarray):
-        """(measured, confidence, left-right check, textured: a callable or None), each (H, W) at the input's
-        resolution (:class:`.result.DisparityResult`)."""
+        """(measured, confidence, left-right check, textured), each (H, W) at the input's resolution
+        (:class:`.result.DisparityResult`); confidence and textured are callables computed when first asked
+        for (:class:`.near.NearCheck`), or None."""
         check_pair(left, right)
         h, w = left.shape[:2]
         rows, pad_l, pad_r, pipe = self._for(w, h)
         if rows is None:
-            res, win, prep = pipe._run(left, right)
+            res, win, prep, conf = pipe._run(left, right)
             tex = None if win is None or prep is None else functools.partial(_textured_map, win, prep, (h, w))
-            return res.measured, res.confidence, res.lr_consistent, tex
+            return res.measured, None if conf is None else functools.cache(conf), res.lr_consistent, tex
         left, right = pad_views(grey(left[rows]), grey(right[rows]), pad_l, pad_r)
-        res, win, prep = pipe._run(left, right)
+        res, win, prep, later = pipe._run(left, right)
         cols = slice(pad_l, pad_l + w)
         measured = _at_rows(res.measured[:, cols], rows, h, np.nan)
         # A match whose partner lies left of the image (in the mirror) is no match: only columns left of the
@@ -250,11 +278,16 @@ class _NearPass:
         with np.errstate(invalid="ignore"):
             band = measured[rows, :reach]
             band[band > np.arange(reach, dtype=np.float32)] = np.nan
-        conf = None if res.confidence is None else _at_rows(res.confidence[:, cols], rows, h, 0.0)
+        conf = None if later is None else functools.cache(lambda: _at_rows(later()[:, cols], rows, h, 0.0))
         lr = None if res.lr_consistent is None else _at_rows(res.lr_consistent[:, cols], rows, h, False)
         tex = None if win is None or prep is None else (
             lambda: _at_rows(_textured_map(win, prep, left.shape[:2])[:, cols], rows, h, False))
         return measured, conf, lr, tex
+
+
+def _place_confidence(full: np.ndarray, win: Window, conf: np.ndarray) -> None:
+    """Write a 0..255 confidence under the region (:meth:`DisparityPipeline._confidence`) into ``full`` as 0..1."""
+    full[win.outer()] = np.clip(conf * np.float32(1.0 / 255.0), 0.0, 1.0)
 
 
 def _at_rows(band: np.ndarray, rows: slice, height: int, fill) -> np.ndarray:

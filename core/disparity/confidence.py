@@ -63,15 +63,18 @@ def lr_confidence(left16: np.ndarray, right16: np.ndarray, sgbm: SGBMParams, res
 
 
 def confidence_maps(left16: np.ndarray, right16: np.ndarray, sgbm: SGBMParams, resize_factor: float = 1.0,
-                    cols: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+                    cols: tuple[int, int] | None = None, weights: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
     """:func:`lr_confidence`, and the left-right check alone: a (h, w) uint8 map, 1 where the left
     pixel is matched and its right partner agrees (or lies outside the right view's answered
     columns, unchecked as in the confidence), whatever its depth-edge weight. A thin twig is all
-    depth edge: its confidence is near 0 though its matches agree (ranging's thin guard uses this)."""
+    depth edge: its confidence is near 0 though its matches agree (ranging's thin guard uses this).
+
+    ``weights=False``: the check alone, (None, check); the depth-edge weights (the box filters, most of
+    the cost) are not computed. The check is the same map either way."""
     h, w = left16.shape
     lo = max(0, sgbm.min_disparity + sgbm.num_disparities)
     ro = max(0, -sgbm.min_disparity)
-    conf = np.zeros((h, w), np.float32)
+    conf = np.zeros((h, w), np.float32) if weights else None
     lr_ok = np.zeros((h, w), np.uint8)
     rf = np.float32(resize_factor)
     roll = np.float32(ROLL_OFF) / (rf * rf)
@@ -112,23 +115,25 @@ def confidence_maps(left16: np.ndarray, right16: np.ndarray, sgbm: SGBMParams, r
         fa, fb = max(lim_a, a - r), min(lim_b, b + r)
         return weight(disp16[:, fa:fb], invalid16, valid[:, fa:fb])[:, a - fa:b - fa]
 
-    # OpenCV marks an unmatched pixel with a value below the searched range ((min_d - 1) x 16, and the
-    # right matcher's mirror of it); a matched right pixel holds minus its disparity.
-    own = weight_over(left16, (sgbm.min_disparity - 1) * 16, left16 >= sgbm.min_disparity * 16, c0, c1, lo, w - ro)
     dl = left16[:, c0:c1].astype(np.int32)
     ridx = np.arange(c0, c1)[None, :] - (dl >> 4)
     checked = (ridx >= ro) & (ridx < re)
     # The right columns these left pixels can point at (within the answered ones).
     ra = max(ro, min(c0 - max(sgbm.min_disparity + sgbm.num_disparities - 1, 0), re - 1))
     rb = min(re, max(c1 + 1 - sgbm.min_disparity, ra + 1))    # +1: an unmatched pixel points one right
-    right_min = 1 - (sgbm.min_disparity + sgbm.num_disparities)      # the right matcher's own min_disparity
-    right_w = weight_over(right16, (right_min - 1) * 16, (right16 <= -sgbm.min_disparity * 16)
-                          & (right16 >= right_min * 16), ra, rb, ro, re)
     safe = np.clip(np.where(checked, ridx, ra), ra, rb - 1)
     rows = np.arange(h)[:, None]
     dr = right16[rows, safe].astype(np.int32)
     agree = np.abs(dl + dr) < int(rf * LRC_THRESH_X16)
+    lr_ok[:, c0:c1] = (dl >= sgbm.min_disparity * 16) & (agree | ~checked)
+    if conf is None:
+        return None, lr_ok
+    # OpenCV marks an unmatched pixel with a value below the searched range ((min_d - 1) x 16, and the
+    # right matcher's mirror of it); a matched right pixel holds minus its disparity.
+    own = weight_over(left16, (sgbm.min_disparity - 1) * 16, left16 >= sgbm.min_disparity * 16, c0, c1, lo, w - ro)
+    right_min = 1 - (sgbm.min_disparity + sgbm.num_disparities)      # the right matcher's own min_disparity
+    right_w = weight_over(right16, (right_min - 1) * 16, (right16 <= -sgbm.min_disparity * 16)
+                          & (right16 >= right_min * 16), ra, rb, ro, re)
     both = np.minimum(own, right_w[rows, safe - ra])
     conf[:, c0:c1] = np.where(checked, np.where(agree, both, np.float32(0.0)), own)
-    lr_ok[:, c0:c1] = (dl >= sgbm.min_disparity * 16) & (agree | ~checked)
     return conf * np.float32(255.0), lr_ok

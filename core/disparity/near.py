@@ -47,8 +47,8 @@ class NearCheck:
     """The near check of one frame.
 
     ``disparity``: (H, W) float32 disparity px (input resolution) the near pass
-    measured, NaN where it matched nothing (its confidence is
-    ``DisparityResult.near_confidence``); ranging looks at the pixels beyond
+    measured, NaN where it matched nothing (its left-right check is
+    ``DisparityResult.near_consistent``); ranging looks at the pixels beyond
     ``max_disparity_px``, the main search's largest disparity, input px.
     """
 
@@ -58,6 +58,11 @@ class NearCheck:
     #: False outside the near pass's region; computed when first asked for (ranging asks only for a frame
     #: that is otherwise blank). None when not available.
     textured: Callable[[], np.ndarray] | None = None
+    #: ``confidence()``: (H, W) float32 0..1, the near pass's confidence (layout of
+    #: ``DisparityResult.confidence``), computed when first asked for: ranging asks only when the main pass
+    #: has matched too little of the region (rule 4), and its depth-edge weights are most of the check's
+    #: cost. None without the near pass's right matcher.
+    confidence: Callable[[], np.ndarray] | None = None
 
 
 #: A pixel is textured when its grey gradient (Sobel magnitude, 8-bit grey, at the near pass's coarse scale,

@@ -24,8 +24,8 @@ class DisparityResult:
     parameters cannot be computed. ``timings_ms``: wall time of each stage of this
     run (prepare, match_left, match_right, confidence, wls, assemble, near), ms.
     ``near``: the near check (:mod:`.near`) when the pipeline was built with
-    ``near=True``, else None; ``near_confidence`` and ``near_consistent``: the near pass's confidence map
-    and its left-right check alone (same layouts as ``confidence`` and ``lr_consistent``) to filter
+    ``near=True``, else None (its confidence is ``near.confidence()``, computed when asked for);
+    ``near_consistent``: the near pass's left-right check alone (layout of ``lr_consistent``) to filter
     ``near.disparity`` with. ``fine``: when the
     flight pipeline has a fine pass (``compute.fine_disparities``), ``fine(box, d0)`` re-matches
     ``box`` (x0, y0, x1, y1 input px) of this frame at full resolution over disparities from ``d0``
@@ -41,7 +41,6 @@ class DisparityResult:
     warning: str | None = None
     timings_ms: Mapping[str, float] = field(default_factory=dict)
     near: Any = None
-    near_confidence: np.ndarray | None = None
     near_consistent: np.ndarray | None = None
     fine: Callable[[tuple[int, int, int, int], int], Any] | None = None
     lr_consistent: np.ndarray | None = None

@@ -546,4 +546,52 @@ def test_the_near_pass_pads_nothing_where_its_window_fits_and_keeps_the_input_co
     from uav_depth.core.disparity import flight_pipeline
     left, right, _, _ = _near_frame(1280, 720, 700.0, 0.063, 1.0)
     res = flight_pipeline(params).run(left, right)
-    assert res.near.disparity.shape == res.near_confidence.shape == left.shape[:2]
+    assert res.near.disparity.shape == res.near.confidence().shape == left.shape[:2]
+
+
+def test_the_left_right_check_alone_is_the_check_the_confidence_computes(small_frame):
+    """confidence_maps(weights=False) skips the depth-edge weights (the near pass's check on every frame) and
+    returns the same check, pixel for pixel, on every column range."""
+    from uav_depth.core.disparity.confidence import confidence_maps
+    from uav_depth.core.disparity.match import build_matchers, match_left, match_right
+
+    _, frame = small_frame
+    left, right = frame.left, frame.right
+    params = DEFAULT_PARAMS.replace(**{"sgbm.num_disparities": 32})
+    m = build_matchers(params)
+    l16, r16 = match_left(m, left, right), match_right(m, left, right)
+    for cols in (None, (40, 200), (0, left.shape[1])):
+        conf, lr = confidence_maps(l16, r16, params.sgbm, cols=cols)
+        none, lr_only = confidence_maps(l16, r16, params.sgbm, cols=cols, weights=False)
+        assert none is None
+        np.testing.assert_array_equal(lr_only, lr)
+        assert lr.any() and not lr.all()
+
+
+@pytest.mark.parametrize("width", [1280, 4000])
+def test_the_near_pass_confidence_computed_when_asked_is_the_one_computed_at_once(width):
+    """The near pass leaves its confidence's weights until ranging asks (rule 4): what it then computes is the
+    eager pipeline's map, padded (1280) or not (4000), and its left-right check is computed at once."""
+    from pathlib import Path
+    from uav_depth.core.disparity import _NearPass, flight_pipeline
+    from uav_depth.core.disparity.near import near_params, pad_views
+    from uav_depth.core.disparity.prepare import grey
+    from uav_depth.core.params import load_params
+
+    params = load_params(Path(__file__).parents[2] / "deploy" / "params-flight.yaml")
+    left, right, _, (x0, y0, x1, y1) = _near_frame(width, 720, 700.0 * width / 1280, 0.063, 0.20)
+    res = flight_pipeline(params).run(left, right)
+    assert res.near_consistent is not None and res.near_consistent.any()
+    lazy = res.near.confidence()
+    assert lazy is res.near.confidence()                    # computed once
+    rows, pad_l, pad_r, pipe = _NearPass(params)._for(width, 720)
+    if rows is None:
+        eager = DisparityPipeline(near_params(params), refine=False).run(left, right)
+        np.testing.assert_array_equal(lazy, eager.confidence)
+        np.testing.assert_array_equal(res.near_consistent, eager.lr_consistent)
+    else:        # the padded band (1280): the eager pipeline on the same mirrored rows
+        band = pad_views(grey(left[rows]), grey(right[rows]), pad_l, pad_r)
+        eager = DisparityPipeline(pipe.params, refine=False).run(*band)
+        np.testing.assert_array_equal(lazy[rows], eager.confidence[:, pad_l:pad_l + width])
+        assert not lazy[:rows.start].any() and not lazy[rows.stop:].any()
+    assert lazy.shape == left.shape[:2] and (lazy[y0:y1, x0:x1] > 0.5).any()

@@ -281,7 +281,7 @@ def test_a_thin_branch_just_inside_the_minimum_range_is_too_close_on_the_near_pa
     with np.errstate(invalid="ignore"):
         beyond = res.near_consistent[y0:y1, x0:x1] & (res.near.disparity[y0:y1, x0:x1] > r.d_max)
     assert beyond.mean() > 0.05
-    assert (res.near_confidence[y0:y1, x0:x1][beyond] >= RangingConfig().min_confidence).mean() < 0.1
+    assert (res.near.confidence()[y0:y1, x0:x1][beyond] >= RangingConfig().min_confidence).mean() < 0.1
 
 
 def test_the_near_pass_confidence_does_not_depend_on_where_wls_would_filter():
@@ -293,8 +293,8 @@ def test_the_near_pass_confidence_does_not_depend_on_where_wls_would_filter():
     cfg, frame = _flight_frame(0.20, 0)
     a = flight_pipeline(DEFAULT_PARAMS).run(frame.left, frame.right)
     b = flight_pipeline(DEFAULT_PARAMS.replace(**{"compute.wls_at": "matched"})).run(frame.left, frame.right)
-    np.testing.assert_array_equal(a.near_confidence, b.near_confidence)
-    assert (a.near_confidence >= 0.5).mean() > 0.05
+    np.testing.assert_array_equal(a.near.confidence(), b.near.confidence())
+    assert (a.near.confidence() >= 0.5).mean() > 0.05
 
 
 def test_the_flight_pipeline_still_ranges_a_branch_just_outside_the_minimum_range():
@@ -398,6 +398,36 @@ def test_a_textured_region_that_nothing_matches_is_too_close():
 
     m = ranger().measure(DisparityResult(measured, measured, None, near=NearCheck(near, 63.0, not_asked)))
     assert not m.too_close
+
+
+def test_rule_4_counts_the_near_pass_confident_matches_and_asks_for_them_only_on_a_blank_main_pass():
+    """Maps built by hand. The near pass matched a quarter of the ROI inside the main search; the main pass 1.7 %.
+    Confident, those matches make the frame a scene, not a blank; unconfident, the textured frame is blank: too
+    close. Where the main pass alone matched enough, the near pass's confidence (its depth-edge weights cost
+    about 0.3 ms a frame) is never computed."""
+    from uav_depth.core.disparity.near import NearCheck
+
+    measured = np.full((360, 640), np.nan, np.float32)
+    measured[120:122, 213:426] = 30.0                              # 1.7 % of the ROI matched
+    near = np.full((360, 640), np.nan, np.float32)
+    near[120:150, 213:426] = 40.0                                  # 25 %, inside the main search (63 px)
+    tex = np.zeros((360, 640), bool)
+    tex[120:150, 213:426] = True
+    ones, zeros = np.ones((360, 640), np.float32), np.zeros((360, 640), np.float32)
+    m = ranger().measure(DisparityResult(measured, measured, None, near=NearCheck(near, 63.0, lambda: tex,
+                                                                                  lambda: ones)))
+    assert not m.too_close, m
+    m = ranger().measure(DisparityResult(measured, measured, None, near=NearCheck(near, 63.0, lambda: tex,
+                                                                                  lambda: zeros)))
+    assert m.too_close and "textured in both views" in m.reason, m
+
+    def not_asked() -> np.ndarray:
+        raise AssertionError("the near confidence is computed only when the main pass matched too little")
+
+    measured[120:150, 213:426] = 30.0                              # 25 % matched by the main pass
+    m = ranger().measure(DisparityResult(measured, measured, None, near=NearCheck(near, 63.0, lambda: tex,
+                                                                                  not_asked)))
+    assert not m.too_close and m.valid, m
 
 
 @pytest.mark.parametrize("variant,seed,distance", [("plain", 0, 0.05), ("plain", 1, 0.07), ("varied", 1, 0.05),
