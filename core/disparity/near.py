@@ -40,6 +40,13 @@ NEAR_MIN_SCALE = 0.125
 #: ... and its search, from 0, reaches at least this many matched px past that end (rounded up to SGBM's
 #: multiple of 16): 64 disparities for the flight file and the manual baseline, about 4 x the main search.
 NEAR_BEYOND = 44
+#: The near pass's match filters, whatever the main parameters say: the values its rules (ranging's too-close
+#: rules 1, 3 and 4) were measured with, those of both shipped files and of OpenCV's sample. The near pass is a
+#: safety check, not a tuned stage: ``uav-depth tune`` searches these keys for the main pass, and a tuned file with
+#: speckle window 2670 / range 6 and uniqueness 0 (a real-pairs tune, 2026-12-05) erased the near pass's matches
+#: and sent branches at 0.27-0.29 m, inside its minimum range of 0.347 m, as 0.50-0.51 m (docs/ranging.md).
+NEAR_FILTERS = {"sgbm.uniqueness_ratio": 10, "sgbm.disp12_max_diff": 1, "sgbm.pre_filter_cap": 63,
+                "sgbm.speckle_window_size": 100, "sgbm.speckle_range": 32}
 
 
 @dataclass(frozen=True)
@@ -92,7 +99,9 @@ def near_params(params: StereoParams) -> StereoParams:
     px (not below ``compute.scale``'s lower bound 0.125), searching from 0 to at least NEAR_BEYOND past that
     end (the module docstring says why from 0); its confidence at its own matched resolution
     (``compute.wls_at`` says where WLS would smooth the main map: with ``input`` at 1/8 scale the left-right
-    tolerance was 0.19 px, and nearly every near match had confidence 0)."""
+    tolerance was 0.19 px, and nearly every near match had confidence 0); its match filters
+    :data:`NEAR_FILTERS`. From ``params`` come only its scale and search (set by the main search's end), its
+    region and the SGBM mode (a speed setting)."""
     d_max = max_disparity_px(params)
     scale = max(NEAR_MIN_SCALE, min(params.compute.scale, NEAR_MIN_DISPARITY / d_max))
     # Grey 3x3 blocks with OpenCV's penalties for them (8 and 32 x channels x block area): at this
@@ -100,7 +109,7 @@ def near_params(params: StereoParams) -> StereoParams:
     return params.replace(**{"compute.scale": scale, "compute.grey": True, "compute.wls_at": "matched",
                              "sgbm.min_disparity": 0,
                              "sgbm.num_disparities": -(-(int(math.floor(d_max * scale)) + NEAR_BEYOND) // 16) * 16,
-                             "sgbm.block_size": 3, "sgbm.p1": 72, "sgbm.p2": 288})
+                             "sgbm.block_size": 3, "sgbm.p1": 72, "sgbm.p2": 288, **NEAR_FILTERS})
 
 
 def near_pad(near: StereoParams, width: int, height: int) -> tuple[int, int]:
