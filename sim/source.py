@@ -45,7 +45,7 @@ import numpy as np
 
 from uav_depth.core.keys import Key, section_values
 from uav_depth.core.disparity.near import max_disparity_px, near_params
-from uav_depth.core.disparity.window import CONTEXT_PX, window
+from uav_depth.core.disparity.window import context_px, window
 from uav_depth.core.errors import ConfigError, SourceError
 from uav_depth.core.params import StereoParams
 from uav_depth.sim.scene import Pose, Scene, SceneConfig, StereoFrame
@@ -131,14 +131,14 @@ def pipeline_reads(params: StereoParams, width: int, height: int, near: bool = T
     crops = [window(params, width, height).crop]
     if near:
         crops.append(window(near_params(params), width, height).crop)
-    cp, sg = params.compute, params.sgbm
+    cp = params.compute
     if cp.fine_pass:
         # The fine pass (core.disparity.fine) re-matches a box inside compute.roi at full resolution:
         # its left crop reaches fine_disparities + context beyond the box, its right crop as far again
         # plus the shift d0, at most the main search's largest disparity.
         rx0, ry0, rx1, ry1 = cp.roi_pixels(width, height)
-        reach = cp.fine_disparities + max(CONTEXT_PX, sg.block_size // 2 + 1)
-        context = max(CONTEXT_PX, sg.block_size // 2 + 1)
+        context = context_px(params)
+        reach = cp.fine_disparities + context
         crops.append((max(0, rx0 - reach - int(math.ceil(max_disparity_px(params)))), max(0, ry0 - context),
                       min(width, rx1 + reach), min(height, ry1 + context)))
     return (min(c[0] for c in crops), min(c[1] for c in crops), max(c[2] for c in crops), max(c[3] for c in crops))

@@ -110,7 +110,8 @@ class DisparityPipeline:
             empty = np.full((h, w), np.nan, np.float32)
             return DisparityResult(empty, empty.copy(), None, self._overflow), None, None, None
         win = window(self.params, w, h)
-        conf_full = None if self.right_matcher is None else np.zeros((h, w), np.float32)
+        # With lazy_confidence the map is made when asked for (:meth:`_confidence_map`), not here.
+        conf_full = None if self.right_matcher is None or self._lazy_confidence else np.zeros((h, w), np.float32)
         measured = np.full((h, w), np.nan, np.float32)
         if win.matched[0] <= search_span(self.params):    # narrower than the search: nothing can be matched
             laps.lap("prepare")
@@ -129,7 +130,6 @@ class DisparityPipeline:
         conf, lr = self._confidence(win, left16, right16, weights=not self._lazy_confidence)
         later = None
         if conf is None:
-            conf_full = None
             later = functools.partial(self._confidence_map, win, left16, right16, (h, w))
         else:
             _place_confidence(conf_full, win, conf)

@@ -26,7 +26,7 @@ import numpy as np
 
 from uav_depth.core.disparity.confidence import lr_confidence
 from uav_depth.core.disparity.match import build_matchers, match_left, match_right, to_float
-from uav_depth.core.disparity.window import CONTEXT_PX
+from uav_depth.core.disparity.window import context_px
 from uav_depth.core.params import StereoParams
 
 
@@ -75,7 +75,7 @@ class FineMatcher:
         x0, y0, x1, y1 = box
         d0 = max(0, int(d0))
         sg = self.params.sgbm
-        context = max(CONTEXT_PX, sg.block_size // 2 + 1)
+        context = context_px(self.params)
         margin = self.num + context
         cx0 = max(x0 - margin, d0)                  # the right crop starts d0 columns left: not before 0
         cx1 = min(w, x1 + (margin if self.matchers.right is not None else context))

@@ -6,8 +6,8 @@ and SGBM then matches it to something else inside the search, i.e. *farther*
 (issue 11: branches at 0.12-0.26 m came back as 0.28-0.49 m). The **near pass**
 tells such a frame apart: the same SGBM on the region at a coarse scale (16 / d_max,
 at least 0.125) searching every disparity from 0 to at least 44 matched px past the main search's
-largest disparity (about four times it); pixels it matches confidently beyond the main search are
-direct evidence of a nearer object. It searches the main range too, so that a match beyond it must
+largest disparity (about four times it); pixels it matches beyond the main search, left-right
+consistent, are direct evidence of a nearer object. It searches the main range too, so that a match beyond it must
 win against the one inside it: on a background that repeats about a tile's width away (a fence, a
 trellis, the renderer's tiles), a search of the near range alone finds the copy one period away
 and calls it near.

@@ -84,15 +84,16 @@ def search_span(params: StereoParams) -> int:
     return max(0, sg.min_disparity + sg.num_disparities) + max(0, -sg.min_disparity)
 
 
-def _context(params: StereoParams) -> int:
-    """Matched px of real image kept around the region (:data:`CONTEXT_PX`, and half a block more)."""
+def context_px(params: StereoParams) -> int:
+    """Matched px of real image kept around what is matched (:data:`CONTEXT_PX`, and half a block more): the
+    window's region and the fine pass's box."""
     return max(CONTEXT_PX, params.sgbm.block_size // 2 + 1)
 
 
 def margins(params: StereoParams) -> tuple[int, int, int]:
     """Input px of image a window wants left, right, and above and below the region (:func:`window`)."""
     sg, cp = params.sgbm, params.compute
-    context = _context(params)
+    context = context_px(params)
     band = max(0, sg.min_disparity + sg.num_disparities)
     left = math.ceil((band + context) / cp.scale)
     right = math.ceil((max(0, -sg.min_disparity) + context + (band if params.wls.enabled else 0)) / cp.scale)
@@ -131,7 +132,7 @@ def window(params: StereoParams, width: int, height: int) -> Window:
     left_cols = None
     if params.wls.enabled:
         # The left matcher's crop ends the left margin's mirror right of the region: context, no search band.
-        lx1 = min(crop[2], rx1 + math.ceil((max(0, -sg.min_disparity) + _context(params)) / cp.scale))
+        lx1 = min(crop[2], rx1 + math.ceil((max(0, -sg.min_disparity) + context_px(params)) / cp.scale))
         left_cols = min(matched[0], math.ceil((lx1 - crop[0]) * matched[0] / cw))
     return Window(crop, (rx0, ry0, rx1, ry1), matched, left_cols)
 
