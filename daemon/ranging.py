@@ -20,7 +20,7 @@ disparity (docs/ranging.md says why each rule and threshold is what it is):
 
 Z = f*B/d and sigma_Z = Z^2/(f*B) * sigma_d. A reading below ``min_quality`` is no
 measurement, or too close when it reads within :data:`WEAK_TOO_CLOSE_FACTOR` x the
-minimum range (a twig inside it matched weakly just beyond). With a fine pass
+search's end distance (a twig inside it matched weakly just beyond). With a fine pass
 (``compute.fine_disparities``) the object's box is re-matched at full resolution and
 ranged again by the same rules; the fine reading
 replaces the coarse one when it is nearer, or farther only within half a coarse pixel
@@ -32,8 +32,9 @@ left-right check but not ``min_confidence`` (a thin twig is all depth edge) may 
 the reading nearer, or too close, never farther (``Ranger._thin_guard``).
 
 An object nearer than the minimum range (the near check sees it beyond the search,
-or the object piles at the search's end) is *too close*: no distance, never a
-farther one. :class:`OutlierGate` lets a nearer reading through
+the object piles at the search's end, or it reads in the search's last
+:data:`NEAR_END_BAND`, which the minimum range leaves out) is *too close*: no
+distance, never a farther one. :class:`OutlierGate` lets a nearer reading through
 at once and holds a jump away until ``confirm_frames`` frames agree.
 
 Longer than 400 lines because the ranging rules (object, fine pass, too close), the
@@ -122,12 +123,20 @@ THIN_GUARD_MAX_CONFIDENT_SHARE = 0.5
 THIN_GUARD_MAX_SKIPPED = 4
 #: A weak reading this near the minimum range is too close (docs/ranging.md, *Too close*, rules 6 and 7): the
 #: thin guard's unconfident object, or a frame below the quality floor, reading nearer than this many times the
-#: minimum range. A twig inside the minimum range is matched, falsely and with little confidence, just beyond it,
+#: search's end distance (``Ranger.search_end_m``; the minimum range until 2026-12-05, when NEAR_END_BAND moved the
+#: minimum range 5 % out and this was kept where it was measured). A twig inside the minimum range is matched, falsely and with little confidence, just beyond it,
 #: and its false matches pass the left-right check too. Measured on the near sweep (docs/ranging.md): the guard at
 #: 1.0 sent 16 of the flight file's 179 leafy frames inside the minimum range as distances, at 1.4 none; below the
 #: floor, the frames inside the minimum range still "no measurement" read 1.01-1.10 x (seeds 0-4) and 1.11-1.14 x
 #: (seeds 5-9), and in-range frames it turns too close had their truth within 1.35 x.
 WEAK_TOO_CLOSE_FACTOR = 1.4
+#: The last share of the search is not a measurement: the minimum range stated (``RangeLimits.min_distance_m``, the
+#: wire's ``min_distance``) lies this share of the largest disparity before the search's end, and a reading nearer than
+#: it is too close (docs/ranging.md, *Too close*, rule 8). An object nearer than the search is matched falsely, and
+#: not always at the very end (rule 2): a twig 10-22 % inside the manual baseline's search was read 1.007-1.046 x the
+#: search's end distance, as a valid distance (near sweep, seeds 0-9: 2 frames; seeds 10-14, never used to choose
+#: it: 1 at 1.008 x). 5 % covers them; it costs 1.5 cm of the flight file's range at 1280x720 (0.279 -> 0.294 m).
+NEAR_END_BAND = 0.05
 #: A slanted object's surface is also read in a square window this many matched px a side around its
 #: front pixels, where it is nearest (``Ranger._slanted_surface``; 0 turns the rule off).
 FRONT_WINDOW_MATCHED_PX = 20
@@ -313,7 +322,10 @@ class Ranger:
         # the fine pass's (full resolution) when it runs, the coarse pass's otherwise.
         self.sigma_floor_px = PIXEL_LOCKING_SIGMA_PX * (1.0 if params.compute.fine_pass else self.px)
         self.d_precise = math.sqrt(self.fb * self.sigma_floor_px / config.max_sigma_m)
-        self.limits = RangeLimits(min_distance_m=self.fb / d_max, max_distance_m=self.fb / self.d_floor,
+        # Where the search ends, m: rules 6 and 7 (WEAK_TOO_CLOSE_FACTOR) count from here, as they were measured.
+        self.search_end_m = self.fb / d_max
+        self.limits = RangeLimits(min_distance_m=self.fb / (d_max * (1.0 - NEAR_END_BAND)),
+                                  max_distance_m=self.fb / self.d_floor,
                                   precise_max_m=self.fb / self.d_precise,
                                   hfov_rad=_fov(roi[0], roi[2], calibration.principal_point[0],
                                                 calibration.focal_px),
@@ -351,7 +363,7 @@ class Ranger:
         # The guard can only act through an object whose front is beyond ``need`` (nearer than m by more than one
         # matched px, or within the too-close factor when m has no distance): fewer consistent pixels there than an
         # object needs, and nothing can change (most frames; the search below costs about 1 ms).
-        lim_d = self.fb / (WEAK_TOO_CLOSE_FACTOR * self.limits.min_distance_m)
+        lim_d = self.fb / (WEAK_TOO_CLOSE_FACTOR * self.search_end_m)
         need = m.disparity_px + CLUSTER_MARGIN_PX * self.px if m.valid else min(lim_d, self.d_max - CLUSTER_MARGIN_PX * self.px)
         with np.errstate(invalid="ignore"):
             ok = (disp >= self.d_floor) & result.lr_consistent[y0:y1, x0:x1]
@@ -380,11 +392,11 @@ class Ranger:
             conf = result.confidence[y0:y1, x0:x1]
             if float((conf[member] >= cfg.min_confidence).mean()) >= THIN_GUARD_MAX_CONFIDENT_SHARE:
                 return m       # the confident pixels saw this object: only the weighting differs
-        lim = self.limits.min_distance_m
+        lim = self.search_end_m
         if g.front >= self.d_max - CLUSTER_MARGIN_PX * self.px or z < WEAK_TOO_CLOSE_FACTOR * lim:
             return Measurement(None, n_px=m.n_px, valid_fraction=m.valid_fraction, too_close=True, guarded=True,
                                reason=f"thin guard: {area_m2 * 1e4:.1f} cm^2 of left-right-consistent matches read "
-                                      f"{z:.3f} m, within {WEAK_TOO_CLOSE_FACTOR:g} x the minimum range "
+                                      f"{z:.3f} m, within {WEAK_TOO_CLOSE_FACTOR:g} x the search's end "
                                       f"{lim:.3f} m or at the search's end: too close")
         if not m.valid:      # the guard makes a reading nearer or too close; it never turns "none" into a distance
             return m
@@ -422,9 +434,9 @@ class Ranger:
         quality = int(min(100, max(2, round(100.0 * valid_fraction * obj.mean_conf))))
         bbox = _shift(obj.bbox, x0, y0)
         if quality < cfg.min_quality:
-            z, lim = self.fb / obj.d, self.limits.min_distance_m
+            z, lim = self.fb / obj.d, self.search_end_m
             weak_near = z < WEAK_TOO_CLOSE_FACTOR * lim      # rule 7: a weak reading at the minimum range
-            why = (f"and the nearest object reads {z:.3f} m, within {WEAK_TOO_CLOSE_FACTOR:g} x the minimum range "
+            why = (f"and the nearest object reads {z:.3f} m, within {WEAK_TOO_CLOSE_FACTOR:g} x the search's end "
                    f"{lim:.3f} m: too close" if weak_near else f"(the object would read {z:.3f} m)")
             return Measurement(None, quality=quality, bbox=bbox, disparity_px=obj.d, sigma_px=obj.sigma_d,
                                n_px=obj.n, valid_fraction=valid_fraction, too_close=weak_near,
@@ -433,6 +445,12 @@ class Ranger:
         if result.fine is not None:
             m = self._refine(m, obj, result, disp, ok)
         # Decided on the reading that would go out (the fine one when it stands): it is the one sent.
+        if m.distance_m < self.limits.min_distance_m:     # rule 8: the search's last NEAR_END_BAND
+            return Measurement(None, quality=m.quality, bbox=m.bbox, disparity_px=m.disparity_px,
+                               sigma_px=m.sigma_px, n_px=m.n_px, valid_fraction=valid_fraction, too_close=True,
+                               reason=f"the nearest object reads {m.distance_m:.3f} m, in the search's last "
+                                      f"{NEAR_END_BAND * 100:g} % (where an object nearer than the search is matched "
+                                      f"falsely): nearer than the minimum range {self.limits.min_distance_m:.3f} m")
         if m.sigma_m > cfg.max_sigma_m:
             return replace(m, distance_m=None, sigma_m=None, refined=False,
                            reason=f"sigma {m.sigma_m:.3f} m above max_sigma_m {cfg.max_sigma_m:.3f} m "

@@ -13,7 +13,8 @@ from uav_depth.daemon.ranging import RangingConfig
 from uav_depth.core.disparity import DisparityPipeline, DisparityResult
 from uav_depth.core.errors import ConfigError
 from uav_depth.core.params import DEFAULT_PARAMS, load_params
-from uav_depth.daemon.ranging import OutlierGate, Ranger, _weighted_quantiles, default_roi, resolve_roi
+from uav_depth.daemon.ranging import (NEAR_END_BAND, OutlierGate, Ranger, _weighted_quantiles, default_roi,
+                                      resolve_roi)
 from uav_depth.sim.scene import Scene, SceneConfig
 from uav_depth.sim.sweep import render
 
@@ -98,7 +99,9 @@ def test_farther_than_max_distance_is_no_measurement():
 def test_limits_from_disparity_range_calibration_and_roi():
     r = ranger(RangingConfig(max_distance_m=10.0))
     fb = 350.0 * 0.063
-    assert r.limits.min_distance_m == pytest.approx(fb / 63)      # min_disparity 0 + 64 - 1
+    # min_disparity 0 + 64 - 1, less the search's last NEAR_END_BAND
+    assert r.search_end_m == pytest.approx(fb / 63)
+    assert r.limits.min_distance_m == pytest.approx(fb / (63 * (1 - NEAR_END_BAND)))
     assert r.limits.max_distance_m == pytest.approx(10.0)
     # the central third of 640 px at f = 350: about 2*atan(107/350)
     assert r.limits.hfov_rad == pytest.approx(2 * math.atan(106.5 / 350.0), rel=0.01)
@@ -109,7 +112,8 @@ def test_limits_and_uncertainty_follow_the_matching_scale():
     half = PARAMS.replace(**{"compute.scale": 0.5})
     r = ranger(params=half)
     fb = 350.0 * 0.063
-    assert r.limits.min_distance_m == pytest.approx(fb / 126)     # 63 matched px are 126 input px
+    assert r.search_end_m == pytest.approx(fb / 126)               # 63 matched px are 126 input px
+    assert r.limits.min_distance_m == pytest.approx(fb / (126 * (1 - NEAR_END_BAND)))
     m = r.measure(_result(np.full((360, 640), 22.0, np.float32)))
     assert m.sigma_px == pytest.approx(2 / math.sqrt(12))         # pixel locking in matched pixels
 
@@ -192,13 +196,15 @@ def _flight_frame(distance: float, seed: int):
 
 
 def test_a_branch_inside_the_minimum_range_is_too_close_never_a_farther_distance():
-    """Flight file (minimum range 0.279 m at 1280x720, f = 700): a branch at 0.20 m used to read 0.35 m."""
+    """Flight file (search ending at 0.279 m at 1280x720, f = 700; minimum range 0.294 m): a branch at 0.20 m
+    used to read 0.35 m."""
     from uav_depth.core.disparity import flight_pipeline
 
     flight = load_params(FLIGHT_FILE)
     cfg, frame = _flight_frame(0.20, 0)
     r = Ranger(RangingConfig(), cfg.calibration, cfg.center_roi, flight)
-    assert r.limits.min_distance_m == pytest.approx(0.2791, abs=1e-4)
+    assert r.search_end_m == pytest.approx(0.2791, abs=1e-4)
+    assert r.limits.min_distance_m == pytest.approx(0.2938, abs=1e-4)
     m = r.measure(flight_pipeline(flight).run(frame.left, frame.right))
     assert m.too_close and m.distance_m is None, m
     assert "near pass" in m.reason
@@ -233,7 +239,7 @@ def test_on_a_frame_narrower_than_the_near_pass_reaches_a_branch_inside_the_mini
     calib = Calibration(focal_px=f, baseline_m=0.16, width=443, height=370)
     for params in (proposed, DEFAULT_PARAMS):
         r = Ranger(RangingConfig(), calib, roi, params)
-        assert truth_m < r.limits.min_distance_m == pytest.approx(1.571, abs=1e-3)
+        assert truth_m < r.search_end_m == pytest.approx(1.571, abs=1e-3)
         m = r.measure(flight_pipeline(params).run(left, right))
         assert m.too_close and m.distance_m is None and "near pass" in m.reason, m
 
@@ -313,9 +319,12 @@ def test_an_object_piled_at_the_end_of_the_search_is_too_close():
     d[130:230, 250:400] = 63.0                           # an object at the search's last disparity (64 - 1)
     m = ranger().measure(_result(d))
     assert m.too_close and not m.valid and "search's end" in m.reason
-    d[130:230, 250:400] = 61.0                           # two pixels inside the search: a distance
+    d[130:230, 250:400] = 61.0                           # two pixels inside the search: not piled at its end
     m = ranger().measure(_result(d))
-    assert m.valid and m.distance_m == pytest.approx(fb / 61.0, rel=1e-3)
+    assert "search's end" not in m.reason and m.too_close     # (rule 8: in the search's last 5 %)
+    d[130:230, 250:400] = 59.0                           # outside the last 5 % (59.85 px): a distance
+    m = ranger().measure(_result(d))
+    assert m.valid and m.distance_m == pytest.approx(fb / 59.0, rel=1e-3)
 
 
 def test_near_pass_evidence_makes_too_close():
@@ -519,18 +528,18 @@ def test_a_weak_reading_at_the_minimum_range_is_too_close():
     close (a twig inside the minimum range is matched, falsely and weakly, just beyond it); reading farther,
     the frame stays no measurement, and above the floor it is a distance."""
     r = ranger()
-    lim = r.limits.min_distance_m
+    lim = r.search_end_m                                 # the factor counts from the search's end
     fb = 350.0 * 0.063
     d = np.full((360, 640), np.nan, np.float32)
-    d[120:150, 213:426] = fb / (1.05 * lim)              # 25 % of the ROI measured: quality 25, under 31
+    d[120:150, 213:426] = fb / (1.35 * lim)              # 25 % of the ROI measured: quality 25, under 31
     m = r.measure(_result(d))
-    assert m.too_close and not m.valid and "within 1.4 x the minimum range" in m.reason, m
+    assert m.too_close and not m.valid and "within 1.4 x the search's end" in m.reason, m
     d[120:150, 213:426] = fb / (1.5 * lim)
     m = r.measure(_result(d))
     assert not m.too_close and not m.valid and "below min_quality" in m.reason, m
-    d[120:150, 213:426] = fb / (1.05 * lim)
+    d[120:150, 213:426] = fb / (1.35 * lim)
     m = ranger(RangingConfig(min_quality=20)).measure(_result(d))
-    assert m.valid and m.distance_m == pytest.approx(1.05 * lim, rel=1e-3)
+    assert m.valid and m.distance_m == pytest.approx(1.35 * lim, rel=1e-3)
 
 
 def test_a_weak_twig_inside_the_minimum_range_is_too_close():
@@ -546,6 +555,38 @@ def test_a_weak_twig_inside_the_minimum_range_is_too_close():
     m = Ranger(RangingConfig(), cfg.calibration, cfg.center_roi, flight).measure(
         flight_pipeline(flight).run(frame.left, frame.right))
     assert m.too_close and not m.valid, m
+
+
+def test_a_reading_in_the_search_s_last_5_percent_is_too_close():
+    """Maps built by hand: the minimum range stated leaves out the search's last 5 % (rule 8). An object read there
+    is too close, whatever its quality; one read just outside it is a distance."""
+    r = ranger()
+    fb = 350.0 * 0.063
+    assert r.limits.min_distance_m == pytest.approx(r.search_end_m / (1 - NEAR_END_BAND))
+    d = np.full((360, 640), fb / 2.0, np.float32)       # a wall at 2 m
+    d[130:230, 250:400] = 0.97 * 63.0                   # 3 % short of the search's end: quality 100
+    m = r.measure(_result(d))
+    assert m.too_close and not m.valid and m.quality == 100 and "last 5 %" in m.reason, m
+    d[130:230, 250:400] = 0.94 * 63.0
+    m = r.measure(_result(d))
+    assert m.valid and m.distance_m == pytest.approx(fb / (0.94 * 63.0), rel=1e-3)
+    assert m.distance_m > r.limits.min_distance_m
+
+
+def test_a_twig_inside_the_minimum_range_read_just_beyond_it_is_too_close():
+    """The manual baseline on the near sweep's leafy seed 10 with the target at 0.40 m: the nearest twig is at
+    0.285 m, 18 % inside the search's end (0.347 m); matched falsely at 1.008 x that, with quality 33 (above the
+    floor), it went out as a valid 0.35 m. Now too close (rule 8)."""
+    from uav_depth.core.disparity import flight_pipeline
+
+    cfg = SceneConfig.leafy(seed=10, branch_distance_m=0.40)
+    frame = render(cfg)   # the near sweep's frame (bench/near_sweep.py)
+    r = Ranger(RangingConfig(), cfg.calibration, cfg.center_roi, DEFAULT_PARAMS)
+    assert frame.truth(cfg.center_roi).significant_m < 0.9 * r.search_end_m
+    m = r.measure(flight_pipeline(DEFAULT_PARAMS).run(frame.left, frame.right))
+    assert m.too_close and not m.valid and "last 5 %" in m.reason, m
+    # what it read: just beyond the search's end, inside the minimum range stated
+    assert r.search_end_m < cfg.focal_px * cfg.baseline_m / m.disparity_px < r.limits.min_distance_m, m
 
 
 def test_readings_below_the_quality_floor_are_no_measurement():

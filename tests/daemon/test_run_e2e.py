@@ -177,7 +177,8 @@ def test_static_branch_rate_distance_fields_notify_shutdown_and_logs(tmp_path, r
     # the stated range ends where even pixel locking (1/sqrt(12) px) gives sigma_z = z^2/fb * sigma_d above
     # what the covariance field can carry (sqrt(254) cm): z = sqrt(0.159 m * fb / (1/sqrt(12) px)) = 3.48 m
     precise_cm = math.floor(100 * math.sqrt(math.sqrt(254) / 100 * fb * math.sqrt(12)))
-    assert (m.min_distance, m.max_distance) == (math.floor(100 * fb / 63 + 1e-6) - 1, min(1000, precise_cm))
+    # the minimum range leaves out the search's last 5 % (63 disparities: 59.85)
+    assert (m.min_distance, m.max_distance) == (math.floor(100 * fb / (0.95 * 63) + 1e-6) - 1, min(1000, precise_cm))
     assert (m.type, m.id, m.orientation) == (4, 1, 0)
     assert m.horizontal_fov == pytest.approx(math.atan(106.5 / 350) + math.atan(106.5 / 350), rel=0.01)
     assert m.vertical_fov == pytest.approx(2 * math.atan(60 / 350), rel=0.02)
