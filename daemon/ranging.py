@@ -114,6 +114,13 @@ THIN_GUARD_M2 = 4e-4
 #: Thin guard (``ranging.thin_guard_m2`` > 0, ``Ranger._thin_guard``): an object of matched pixels that pass the
 #: left-right check, confident or not, replaces the reading when it is nearer by more than this share...
 THIN_GUARD_NEARER_REL = 0.02
+#: ... and by more than this many matched px of disparity: half a pixel, the coarse pass's own rounding (as
+#: FINE_FARTHER_PX); within it a coarse reading is no evidence against a fine one. One whole pixel (until 2026-12-05)
+#: left the fine pass's reading of a thin twig, 2-5 % farther than the twig (its matches lean toward the background
+#: beside it), against a guard reading 1.75-1.94 input px nearer. Measured (docs/ranging.md, *Thin guard*): leafy
+#: near-sweep frames farther than 2 % 98 -> 63 (flight file, seeds 0-14); with no rule at all, plain frames at
+#: 1.5-3 m read 5-23 % nearer.
+THIN_GUARD_NEARER_PX = 0.5
 #: ... and is reported too close when it reads nearer than WEAK_TOO_CLOSE_FACTOR times the minimum range (below).
 #: ... and only when under this share of its pixels are confident: an object mostly confident is one the confident
 #: reading saw already, and its unconfident edge pixels read a plain branch 5-7 % nearer (a 0.8 m branch at 640x360).
@@ -347,10 +354,10 @@ class Ranger:
         near sweep, docs/ranging.md). Here the same rules 1-3 find the nearest object among every measured
         pixel that passes the left-right check, each weighing 1, that covers at least ``thin_guard_m2`` of
         visible area (up to :data:`THIN_GUARD_MAX_SKIPPED` smaller ones in front of it, stray consistent
-        matches, are passed over); if it reads nearer than ``m`` by more than :data:`THIN_GUARD_NEARER_REL` and by more than one
-        matched pixel of disparity (the coarse pass's resolution: within it, a coarse reading is no evidence
-        against a fine one; without this rule the flight file's plain frames at 1.5-3 m read 5-23 % nearer),
-        it replaces ``m``:
+        matches, are passed over); if it reads nearer than ``m`` by more than :data:`THIN_GUARD_NEARER_REL` and by more
+        than :data:`THIN_GUARD_NEARER_PX` matched pixels of disparity (the coarse pass's rounding: within it, a coarse
+        reading is no evidence against a fine one; without this rule the flight file's plain frames at 1.5-3 m read
+        5-23 % nearer), it replaces ``m``:
         coarse, without the fine pass (whose confidence would drop the twig again) or the quality floor (it
         is the nearer reading). Nearer than :data:`WEAK_TOO_CLOSE_FACTOR` times the minimum range, or
         piled at the search's end, it is too close, also when ``m`` has no distance; otherwise a frame without
@@ -360,11 +367,12 @@ class Ranger:
         cfg = self.config
         x0, y0, x1, y1 = self.roi
         disp = result.measured[y0:y1, x0:x1]
-        # The guard can only act through an object whose front is beyond ``need`` (nearer than m by more than one
-        # matched px, or within the too-close factor when m has no distance): fewer consistent pixels there than an
+        # The guard can only act through an object whose front is beyond ``need`` (nearer than m by more than
+        # THIN_GUARD_NEARER_PX matched px, or within the too-close factor when m has no distance): fewer consistent pixels there than an
         # object needs, and nothing can change (most frames; the search below costs about 1 ms).
         lim_d = self.fb / (WEAK_TOO_CLOSE_FACTOR * self.search_end_m)
-        need = m.disparity_px + CLUSTER_MARGIN_PX * self.px if m.valid else min(lim_d, self.d_max - CLUSTER_MARGIN_PX * self.px)
+        need = (m.disparity_px + THIN_GUARD_NEARER_PX * self.px if m.valid
+                else min(lim_d, self.d_max - CLUSTER_MARGIN_PX * self.px))
         with np.errstate(invalid="ignore"):
             ok = (disp >= self.d_floor) & result.lr_consistent[y0:y1, x0:x1]
             if np.count_nonzero(ok & (disp >= need)) < cfg.min_valid_px * self.px * self.px:

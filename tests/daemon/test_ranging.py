@@ -589,6 +589,28 @@ def test_a_twig_inside_the_minimum_range_read_just_beyond_it_is_too_close():
     assert r.search_end_m < cfg.focal_px * cfg.baseline_m / m.disparity_px < r.limits.min_distance_m, m
 
 
+def test_the_thin_guard_reads_a_twig_the_fine_pass_reads_half_a_pixel_too_far():
+    """The flight file on the near sweep's leafy seed 2 with the target at 0.88 m: the nearest object is a 4.5 mm twig
+    at 0.640 m. The fine pass matched it leaning toward the background beside it and read 0.668 m (+4.2 %); the
+    guard's left-right-consistent object read it at 0.649 m, 1.94 input px nearer, under the one whole matched pixel
+    (2 px at half scale) the guard needed until 2026-12-05. Half a matched pixel, the coarse pass's rounding, lets it
+    through."""
+    from uav_depth.core.disparity import flight_pipeline
+
+    flight = load_params(FLIGHT_FILE)
+    cfg = SceneConfig.leafy(seed=2, branch_distance_m=0.88)
+    frame = render(cfg)   # the near sweep's frame (bench/near_sweep.py)
+    truth = frame.truth(cfg.center_roi).significant_m
+    assert truth == pytest.approx(0.640, abs=1e-3)
+    m = Ranger(RangingConfig(), cfg.calibration, cfg.center_roi, flight).measure(
+        flight_pipeline(flight).run(frame.left, frame.right))
+    assert m.valid and m.guarded, m
+    assert truth <= m.distance_m <= 1.02 * truth, m       # the twig, within 2 %; never nearer than it here
+    m = Ranger(RangingConfig(thin_guard_m2=0.0), cfg.calibration, cfg.center_roi, flight).measure(
+        flight_pipeline(flight).run(frame.left, frame.right))
+    assert m.refined and m.distance_m > 1.03 * truth, m    # what the confident pixels alone read
+
+
 def test_readings_below_the_quality_floor_are_no_measurement():
     fb = 350.0 * 0.063
     d = np.full((360, 640), np.nan, np.float32)
