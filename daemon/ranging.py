@@ -140,9 +140,10 @@ WEAK_TOO_CLOSE_FACTOR = 1.4
 #: The last share of the search is not a measurement: the minimum range stated (``RangeLimits.min_distance_m``, the
 #: wire's ``min_distance``) lies this share of the largest disparity before the search's end, and a reading nearer than
 #: it is too close (docs/ranging.md, *Too close*, rule 8). An object nearer than the search is matched falsely, and
-#: not always at the very end (rule 2): a twig 10-22 % inside the manual baseline's search was read 1.007-1.046 x the
-#: search's end distance, as a valid distance (near sweep, seeds 0-9: 2 frames; seeds 10-14, never used to choose
-#: it: 1 at 1.008 x). 5 % covers them; it costs 1.5 cm of the flight file's range at 1280x720 (0.279 -> 0.294 m).
+#: not always at the very end (rule 2): twigs 11-18 % inside the manual baseline's search went out as valid distances
+#: at 1.008-1.037 x the search's end distance (near sweep, leafy seeds 7 and 10), and every such frame seen on seeds
+#: 0-14 since 2026-12-03 read within 1.046 x. 5 % covers them; it costs 1.5 cm of the flight file's range at
+#: 1280x720 (0.279 -> 0.294 m).
 NEAR_END_BAND = 0.05
 #: A slanted object's surface is also read in a square window this many matched px a side around its
 #: front pixels, where it is nearest (``Ranger._slanted_surface``; 0 turns the rule off).
