@@ -121,7 +121,8 @@ THIN_GUARD_NEARER_REL = 0.02
 #: near-sweep frames farther than 2 % 98 -> 63 (flight file, seeds 0-14); with no rule at all, plain frames at
 #: 1.5-3 m read 5-23 % nearer.
 THIN_GUARD_NEARER_PX = 0.5
-#: ... and is reported too close when it reads nearer than WEAK_TOO_CLOSE_FACTOR times the minimum range (below).
+#: ... and is reported too close when it reads nearer than WEAK_TOO_CLOSE_FACTOR times the search's end distance
+#: (below).
 #: ... and only when under this share of its pixels are confident: an object mostly confident is one the confident
 #: reading saw already, and its unconfident edge pixels read a plain branch 5-7 % nearer (a 0.8 m branch at 640x360).
 THIN_GUARD_MAX_CONFIDENT_SHARE = 0.5
@@ -131,11 +132,12 @@ THIN_GUARD_MAX_SKIPPED = 4
 #: A weak reading this near the minimum range is too close (docs/ranging.md, *Too close*, rules 6 and 7): the
 #: thin guard's unconfident object, or a frame below the quality floor, reading nearer than this many times the
 #: search's end distance (``Ranger.search_end_m``; the minimum range until 2026-12-05, when NEAR_END_BAND moved the
-#: minimum range 5 % out and this was kept where it was measured). A twig inside the minimum range is matched, falsely and with little confidence, just beyond it,
-#: and its false matches pass the left-right check too. Measured on the near sweep (docs/ranging.md): the guard at
-#: 1.0 sent 16 of the flight file's 179 leafy frames inside the minimum range as distances, at 1.4 none; below the
-#: floor, the frames inside the minimum range still "no measurement" read 1.01-1.10 x (seeds 0-4) and 1.11-1.14 x
-#: (seeds 5-9), and in-range frames it turns too close had their truth within 1.35 x.
+#: minimum range 5 % out and this was kept where it was measured). A twig inside the minimum range is matched,
+#: falsely and with little confidence, just beyond it, and its false matches pass the left-right check too.
+#: Measured on the near sweep (docs/ranging.md): the guard at 1.0 sent 16 of the flight file's 179 leafy frames
+#: inside the minimum range as distances, at 1.4 none; below the floor, the frames inside the minimum range still
+#: "no measurement" read 1.01-1.10 x (seeds 0-4) and 1.11-1.14 x (seeds 5-9), and in-range frames it turns too close
+#: had their truth within 1.35 x.
 WEAK_TOO_CLOSE_FACTOR = 1.4
 #: The last share of the search is not a measurement: the minimum range stated (``RangeLimits.min_distance_m``, the
 #: wire's ``min_distance``) lies this share of the largest disparity before the search's end, and a reading nearer than
@@ -360,7 +362,7 @@ class Ranger:
         reading is no evidence against a fine one; without this rule the flight file's plain frames at 1.5-3 m read
         5-23 % nearer), it replaces ``m``:
         coarse, without the fine pass (whose confidence would drop the twig again) or the quality floor (it
-        is the nearer reading). Nearer than :data:`WEAK_TOO_CLOSE_FACTOR` times the minimum range, or
+        is the nearer reading). Nearer than :data:`WEAK_TOO_CLOSE_FACTOR` times the search's end distance, or
         piled at the search's end, it is too close, also when ``m`` has no distance; otherwise a frame without
         a distance stays without one (the guard never turns "no measurement" into a distance: on the leafy
         suite that let a +9 % reading out). Never farther than ``m``.
@@ -369,8 +371,8 @@ class Ranger:
         x0, y0, x1, y1 = self.roi
         disp = result.measured[y0:y1, x0:x1]
         # The guard can only act through an object whose front is beyond ``need`` (nearer than m by more than
-        # THIN_GUARD_NEARER_PX matched px, or within the too-close factor when m has no distance): fewer consistent pixels there than an
-        # object needs, and nothing can change (most frames; the search below costs about 1 ms).
+        # THIN_GUARD_NEARER_PX matched px, or within the too-close factor when m has no distance): fewer consistent
+        # pixels there than an object needs, and nothing can change (most frames; the search below costs about 1 ms).
         lim_d = self.fb / (WEAK_TOO_CLOSE_FACTOR * self.search_end_m)
         need = (m.disparity_px + THIN_GUARD_NEARER_PX * self.px if m.valid
                 else min(lim_d, self.d_max - CLUSTER_MARGIN_PX * self.px))
@@ -455,11 +457,10 @@ class Ranger:
             m = self._refine(m, obj, result, disp, ok)
         # Decided on the reading that would go out (the fine one when it stands): it is the one sent.
         if m.distance_m < self.limits.min_distance_m:     # rule 8: the search's last NEAR_END_BAND
-            return Measurement(None, quality=m.quality, bbox=m.bbox, disparity_px=m.disparity_px,
-                               sigma_px=m.sigma_px, n_px=m.n_px, valid_fraction=valid_fraction, too_close=True,
-                               reason=f"the nearest object reads {m.distance_m:.3f} m, in the search's last "
-                                      f"{NEAR_END_BAND * 100:g} % (where an object nearer than the search is matched "
-                                      f"falsely): nearer than the minimum range {self.limits.min_distance_m:.3f} m")
+            return replace(m, distance_m=None, sigma_m=None, refined=False, too_close=True,
+                           reason=f"the nearest object reads {m.distance_m:.3f} m, in the search's last "
+                                  f"{NEAR_END_BAND * 100:g} % (where an object nearer than the search is matched "
+                                  f"falsely): nearer than the minimum range {self.limits.min_distance_m:.3f} m")
         if m.sigma_m > cfg.max_sigma_m:
             return replace(m, distance_m=None, sigma_m=None, refined=False,
                            reason=f"sigma {m.sigma_m:.3f} m above max_sigma_m {cfg.max_sigma_m:.3f} m "

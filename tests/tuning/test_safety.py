@@ -19,22 +19,23 @@ T96 = FLIGHT.replace(**{"sgbm.p1": 12, "sgbm.p2": 649, "sgbm.disp12_max_diff": 3
                         "sgbm.uniqueness_ratio": 1, "sgbm.speckle_window_size": 6, "sgbm.speckle_range": 35})
 
 
+def _sweep_frame(key: str, cfg) -> FrameData:
+    """``cfg`` rendered as the safety sweep renders its frames, keyed ``safety/<key>``."""
+    left, right, truth_m, roi = render_with_truth(cfg)
+    return FrameData(f"safety/{key}", left, right, branch_distance_m=truth_m, roi=roi,
+                     focal_px=cfg.focal_px, baseline_m=cfg.baseline_m)
+
+
 def _twig_frame() -> FrameData:
     """The quick sweep's leafy seed-0 branch at 2 m (truth 1.403 m, a twig), which the flight file reads within
     0.02 %."""
-    cfg = dict(quick_sweep())["leafy-s0-2.00m"]
-    left, right, truth_m, roi = render_with_truth(cfg)
-    return FrameData("safety/leafy-s0-2.00m", left, right, branch_distance_m=truth_m, roi=roi,
-                     focal_px=cfg.focal_px, baseline_m=cfg.baseline_m)
+    return _sweep_frame("leafy-s0-2.00m", dict(quick_sweep())["leafy-s0-2.00m"])
 
 
 def _farther_frame() -> FrameData:
     """The standard sweep's leafy seed-2 branch at 2.70 m (truth 2.020 m), which the flight file reads 0.78 % nearer
     and the 96-scene file 2.72 % farther."""
-    cfg = VARIANTS["leafy"](2.70, 2)
-    left, right, truth_m, roi = render_with_truth(cfg)
-    return FrameData("safety/leafy-s2-2.70m", left, right, branch_distance_m=truth_m, roi=roi,
-                     focal_px=cfg.focal_px, baseline_m=cfg.baseline_m)
+    return _sweep_frame("leafy-s2-2.70m", VARIANTS["leafy"](2.70, 2))
 
 
 def _gate(request: TuneRequest, chosen, train: FrameSet):
@@ -77,10 +78,10 @@ def test_the_safety_sweep_refuses_a_candidate_that_reads_a_sweep_frame_farther()
 def test_the_safety_screen_sets_a_farther_or_a_less_accurate_candidate_aside(monkeypatch):
     """The screen of the held-out choice on the quick sweep's leafy seed-0 branch at 2 m (truth 1.403 m, a twig),
     which the flight file reads within 0.02 %. The 96-scene file above reads it 1.0 % farther: within 2 %, but less
-    accurate than the base allows (1.1 x 0.02 + 0.25 %): set aside. The runner-up of the tune on leafy scenes and near-range
-    frames (2026-12-05; the best five read this frame 3.5 % farther) reads it 1.4 % nearer: not farther, but less
-    accurate than the base allows (1.1 x 0.02 + 0.25 %), and on the 330-frame sweep its median error is 1.58 %
-    against the flight file's 1.15 %: set aside too. A candidate that reads as the base passes. The sweep is
+    accurate than the base allows (1.1 x 0.02 + 0.25 %): set aside. The runner-up of the tune on leafy scenes and
+    near-range frames (2026-12-05; the best five read this frame 3.5 % farther) reads it 1.4 % nearer: not farther,
+    but less accurate than the base allows (1.1 x 0.02 + 0.25 %), and on the 330-frame sweep its median error is
+    1.58 % against the flight file's 1.15 %: set aside too. A candidate that reads as the base passes. The sweep is
     rendered once, each parameter set read once."""
     flight, unsafe = FLIGHT, T96
     nearer = flight.replace(**{"sgbm.p1": 11, "sgbm.p2": 741, "sgbm.disp12_max_diff": 107, "sgbm.pre_filter_cap": 57,
