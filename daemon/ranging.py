@@ -275,8 +275,9 @@ _QUANTILE_GRID = 16.0
 _QUANTILE_MAX_LEVELS = 1 << 16
 
 
-def _weighted_quantiles(values: np.ndarray, weights: np.ndarray, *qs: float) -> list[float]:
-    """The values that leave a share q of the weight below them, for each q (one histogram or one sort).
+def _weighted_quantiles(values: np.ndarray, weights: np.ndarray | None, *qs: float) -> list[float]:
+    """The values that leave a share q of the weight below them, for each q (one histogram or one sort);
+    ``weights`` None: each value weighs 1 (the same answer as ones, counted instead of summed).
 
     Tied values may be ordered either way: the value where the cumulative weight crosses
     q is the same, so the sort need not be stable (it is about twice as fast).
@@ -292,16 +293,25 @@ def _weighted_quantiles(values: np.ndarray, weights: np.ndarray, *qs: float) -> 
         lo = float(v64.min())
         keys = np.rint((v64 - lo) * _QUANTILE_GRID)
         if keys.max() < _QUANTILE_MAX_LEVELS and np.array_equal(keys / _QUANTILE_GRID + lo, v64):
-            cum = np.cumsum(np.bincount(keys.astype(np.intp), weights=weights), dtype=np.float64)
+            cum = np.cumsum(np.bincount(keys.astype(np.intp), weights=weights))
             return [lo + float(min(int(np.searchsorted(cum, q * cum[-1])), cum.size - 1)) / _QUANTILE_GRID
                     for q in qs]
     order = np.argsort(values)
-    v, w = values[order], weights[order]
-    cum = np.cumsum(w, dtype=np.float64)
+    v = values[order]
+    cum = np.arange(1, v.size + 1) if weights is None else np.cumsum(weights[order], dtype=np.float64)
     return [float(v[min(int(np.searchsorted(cum, q * cum[-1])), v.size - 1)]) for q in qs]
 
 
-def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+def _median(values: np.ndarray) -> float:
+    """``np.median`` of a small integer array (pixel indices), the same value without its overhead."""
+    n = values.size
+    if n > 1024:
+        return float(np.median(values))
+    s = np.sort(values)
+    return float(s[n // 2]) if n % 2 else (float(s[n // 2 - 1]) + float(s[n // 2])) / 2.0
+
+
+def _weighted_median(values: np.ndarray, weights: np.ndarray | None) -> float:
     return _weighted_quantiles(values, weights, 0.5)[0]
 
 
@@ -498,25 +508,27 @@ class Ranger:
         margin = CLUSTER_MARGIN_PX * px if margin_px is None else margin_px
         lower = self.fb / (self.fb / front + cfg.cluster_depth_m) - margin
         upper = front + margin
-        member = (vals >= lower) & (vals <= upper)
-        v = vals[member].astype(np.float64)
-        w = conf[ok][member].astype(np.float64) if conf is not None else np.ones_like(v)
-        if not w.sum() > 0:
-            w = np.ones_like(v)
-        # Larger disparity is nearer: leave surface_quantile of the object's weight above d.
-        d, med = _weighted_quantiles(v, w, 1.0 - cfg.surface_quantile, 0.5)
-        sigma_d = max(1.4826 * _weighted_median(np.abs(v - med), w), PIXEL_LOCKING_SIGMA_PX * px)
         with np.errstate(invalid="ignore"):
             mask = ok & (disp >= lower) & (disp <= upper)
         rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
         bbox = (int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1)
-        box = (slice(bbox[1], bbox[3]), slice(bbox[0], bbox[2]))     # every object pixel, in the order of v
-        d = self._slanted_surface(mask[box], v, w, front, d, front if slant_cap is None else min(front, slant_cap),
+        box = (slice(bbox[1], bbox[3]), slice(bbox[0], bbox[2]))
+        # Every object pixel lies in its box: read there, in row order (what the ROI-wide indexing gave, cheaper).
+        inbox, dbox = mask[box], disp[box]
+        wbox = conf[box] if conf is not None else None
+        v = dbox[inbox].astype(np.float64)
+        w = wbox[inbox].astype(np.float64) if wbox is not None else None     # None: each pixel weighs 1
+        if w is not None and not w.sum() > 0:
+            w, wbox = None, None
+        # Larger disparity is nearer: leave surface_quantile of the object's weight above d.
+        d, med = _weighted_quantiles(v, w, 1.0 - cfg.surface_quantile, 0.5)
+        sigma_d = max(1.4826 * _weighted_median(np.abs(v - med), w), PIXEL_LOCKING_SIGMA_PX * px)
+        d = self._slanted_surface(inbox, dbox, wbox, front, d, front if slant_cap is None else min(front, slant_cap),
                                   px if count_px is None else count_px)
-        return _Object(front, d, sigma_d, int(v.size), float(w.mean()) if conf is not None else 1.0, lower, bbox)
+        return _Object(front, d, sigma_d, int(v.size), float(w.mean()) if w is not None else 1.0, lower, bbox)
 
-    def _slanted_surface(self, mask: np.ndarray, v: np.ndarray, w: np.ndarray, front: float, d: float,
-                         cap: float, count_px: float) -> float:
+    def _slanted_surface(self, mask: np.ndarray, disp: np.ndarray, weight: np.ndarray | None, front: float,
+                         d: float, cap: float, count_px: float) -> float:
         """The object's reported disparity ``d``, read again where the object is nearest.
 
         The quantile over the whole band reads a branch seen obliquely (braking pitch, yaw)
@@ -528,20 +540,29 @@ class Ranger:
         its middle. The window's reading wins when it is nearer and the window holds at
         least ``min_valid_px`` matched pixels of the object. Never farther than ``d``, never
         nearer than ``cap`` (the front; for the fine pass the coarse pass's front if that is
-        farther). ``mask``: the object's pixels, in the order of ``v`` and ``w``.
+        farther). ``mask``: the object's pixels in its box; ``disp`` and ``weight`` (None:
+        each pixel weighs 1): the map and the weights over the same box.
         """
         if FRONT_WINDOW_MATCHED_PX <= 0:
             return d
-        ys, xs = np.nonzero(mask)
-        sel = v >= front
-        if ys.size != v.size or not sel.any():
+        with np.errstate(invalid="ignore"):
+            ys, xs = np.nonzero(mask & (disp >= front))
+        if ys.size == 0:
             return d
         half = FRONT_WINDOW_MATCHED_PX * count_px / 2.0
-        cy, cx = float(np.median(ys[sel])), float(np.median(xs[sel]))
-        inside = (np.abs(ys - cy) <= half) & (np.abs(xs - cx) <= half)
-        if inside.sum() < self.config.min_valid_px * count_px * count_px:
+        cy, cx = _median(ys), _median(xs)
+        # The window: the box's rows and columns within ``half`` of the centre (a slice of the box).
+        r = np.flatnonzero(np.abs(np.arange(mask.shape[0]) - cy) <= half)
+        c = np.flatnonzero(np.abs(np.arange(mask.shape[1]) - cx) <= half)
+        if r.size == 0 or c.size == 0:
             return d
-        (near_end,) = _weighted_quantiles(v[inside], w[inside], 1.0 - self.config.surface_quantile)
+        win = (slice(int(r[0]), int(r[-1]) + 1), slice(int(c[0]), int(c[-1]) + 1))
+        inside = mask[win]
+        if np.count_nonzero(inside) < self.config.min_valid_px * count_px * count_px:
+            return d
+        v = disp[win][inside].astype(np.float64)
+        w = weight[win][inside].astype(np.float64) if weight is not None else None
+        (near_end,) = _weighted_quantiles(v, w, 1.0 - self.config.surface_quantile)
         return min(max(near_end, d), max(d, cap))
 
     def _refine(self, m: Measurement, obj: "_Object", result: DisparityResult, disp: np.ndarray,
@@ -586,7 +607,9 @@ class Ranger:
             bx1 += 1
         # The window keeps the unseen columns (the side they are on), else centres on the front pixels.
         anchor = "left" if bx0 < ox0 else "right" if bx1 > ox1 else None
-        bx0, by0, bx1, by1 = self._fine_window((bx0, by0, bx1, by1), ok & (disp >= obj.d), anchor)
+        with np.errstate(invalid="ignore"):
+            front = ok[by0:by1, bx0:bx1] & (disp[by0:by1, bx0:bx1] >= obj.d)
+        bx0, by0, bx1, by1 = self._fine_window((bx0, by0, bx1, by1), front, anchor)
         num = self.params.compute.fine_disparities
         d0 = max(0, int(math.floor(obj.d - FINE_BELOW_REL * num)))
         fm = result.fine((bx0 + x0, by0 + y0, bx1 + x0, by1 + y0), d0)
@@ -609,9 +632,9 @@ class Ranger:
         """``box`` (ROI coordinates) cut to at most FINE_MAX_COLS x FINE_MAX_ROWS (a wider box: up to twice the
         columns with the rows cut to keep the area, at least FINE_MIN_ROWS) around the median of the
         ``front`` pixels in it (those that decide the reading), or along the ``anchor`` side ("left",
-        "right"): the fine pass's cost stays bounded."""
+        "right"): the fine pass's cost stays bounded. ``front``: the box's own pixels."""
         bx0, by0, bx1, by1 = box
-        ys, xs = np.nonzero(front[by0:by1, bx0:bx1])
+        ys, xs = np.nonzero(front)
         if ys.size == 0:
             return box
         cx, cy = bx0 + int(np.median(xs)), by0 + int(np.median(ys))

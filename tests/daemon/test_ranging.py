@@ -13,7 +13,7 @@ from uav_depth.daemon.ranging import RangingConfig
 from uav_depth.core.disparity import DisparityPipeline, DisparityResult
 from uav_depth.core.errors import ConfigError
 from uav_depth.core.params import DEFAULT_PARAMS, load_params
-from uav_depth.daemon.ranging import (NEAR_END_BAND, OutlierGate, Ranger, _weighted_quantiles, default_roi,
+from uav_depth.daemon.ranging import (NEAR_END_BAND, OutlierGate, Ranger, _median, _weighted_quantiles, default_roi,
                                       resolve_roi)
 from uav_depth.sim.scene import Scene, SceneConfig
 from uav_depth.sim.sweep import render
@@ -1019,6 +1019,25 @@ def test_weighted_quantiles_on_the_matchers_grid_equal_the_sorted_definition(ste
         weights[rng.random(n) < 0.2] = 0.0
         qs = (0.0, 0.5, 0.9, 1.0, float(rng.random()))
         assert _weighted_quantiles(values, weights, *qs) == _sorted_quantiles(values, weights, *qs)
+
+
+@pytest.mark.parametrize("step", [1 / 16, None])
+def test_unweighted_quantiles_count_what_unit_weights_sum(step):
+    # weights None (the thin guard's pixels, each weighing 1) counts instead of summing: the same values as
+    # ones, on the matcher's grid (the histogram) and off it (the sort).
+    rng = np.random.default_rng(9)
+    for _ in range(200):
+        n = int(rng.integers(1, 1500))
+        values = (rng.integers(0, 600, n) * step + 2.0 if step else rng.uniform(2.0, 60.0, n)).astype(np.float32)
+        qs = (0.0, 0.2, 0.5, 1.0, float(rng.random()))
+        assert _weighted_quantiles(values, None, *qs) == _sorted_quantiles(values, np.ones(n), *qs)
+
+
+def test_the_median_of_pixel_indices_is_numpys():
+    rng = np.random.default_rng(10)
+    for n in [1, 2, 3, 4, 5, 64, 65, 1024, 1025, 3000]:
+        idx = rng.integers(0, 720, n)
+        assert _median(idx) == float(np.median(idx))
 
 
 def test_weighted_quantiles_off_the_grid_fall_back_to_the_sort():
