@@ -95,6 +95,8 @@ class FineMatcher:
         conf = None
         if self.matchers.right is not None:
             conf = np.zeros((y1 - y0, x1 - x0), np.float32)
-            conf[:, ix0 - x0:] = np.clip(lr_confidence(left16, match_right(self.matchers, lc, rc),
-                                                       self.params.sgbm)[inner] * np.float32(1.0 / 255.0), 0.0, 1.0)
+            # Over the box's columns only (each value the whole crop's map would hold, lr_confidence's cols).
+            conf[:, ix0 - x0:] = np.clip(lr_confidence(left16, match_right(self.matchers, lc, rc), self.params.sgbm,
+                                                       cols=(ix0 - cx0, x1 - cx0))[inner] * np.float32(1.0 / 255.0),
+                                         0.0, 1.0)
         return FineMatch(box, measured, conf, float(d0), float(d0 + self.num - 1))

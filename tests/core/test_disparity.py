@@ -399,6 +399,32 @@ def test_the_fine_pass_matches_a_box_at_full_resolution_over_a_shifted_search(sm
     assert (err < 0.5).sum() < 0.1 * branch.sum()
 
 
+def test_the_fine_pass_confidence_over_its_box_is_the_whole_crop_s(small_frame, monkeypatch):
+    """The fine pass computes the confidence on the box's columns only (the crop's margins are for the search):
+    each value it keeps is the one the crop's whole map holds."""
+    import uav_depth.core.disparity.fine as fine_module
+    from uav_depth.core.disparity.confidence import lr_confidence
+
+    seen = []
+
+    def both(left16, right16, sgbm, resize_factor=1.0, cols=None):
+        part = lr_confidence(left16, right16, sgbm, resize_factor, cols)
+        whole = lr_confidence(left16, right16, sgbm, resize_factor)
+        seen.append((cols, part, whole))
+        return part
+
+    monkeypatch.setattr(fine_module, "lr_confidence", both)
+    cfg, f = small_frame
+    box = _branch_box(cfg, f)
+    fm = fine_module.FineMatcher(HALF_FINE).match(f.left, f.right, box, 4)
+    (cols, part, whole), = seen
+    c0, c1 = cols
+    assert c1 - c0 == box[2] - box[0] and c1 < whole.shape[1]     # the box's columns, not the crop's
+    assert (whole[:, c0:c1] > 0).mean() > 0.5
+    assert np.array_equal(part[:, c0:c1], whole[:, c0:c1])
+    assert fm.confidence.shape == (box[3] - box[1], box[2] - box[0])
+
+
 def test_the_fine_pass_runs_only_in_the_flight_pipeline_below_full_resolution(small_frame):
     from uav_depth.core.disparity import flight_pipeline
 
