@@ -127,7 +127,7 @@ THIN_GUARD_NEARER_PX = 0.5
 #: reading saw already, and its unconfident edge pixels read a plain branch 5-7 % nearer (a 0.8 m branch at 640x360).
 THIN_GUARD_MAX_CONFIDENT_SHARE = 0.5
 #: ... and it passes over at most this many smaller objects in front of the one it reads (each costs one more
-#: search, about 1 ms).
+#: search, about 0.9 ms).
 THIN_GUARD_MAX_SKIPPED = 4
 #: A weak reading this near the minimum range is too close (docs/ranging.md, *Too close*, rules 6 and 7): the
 #: thin guard's unconfident object, or a frame below the quality floor, reading nearer than this many times the
@@ -382,7 +382,8 @@ class Ranger:
         disp = result.measured[y0:y1, x0:x1]
         # The guard can only act through an object whose front is beyond ``need`` (nearer than m by more than
         # THIN_GUARD_NEARER_PX matched px, or within the too-close factor when m has no distance): fewer consistent
-        # pixels there than an object needs, and nothing can change (most frames; the search below costs about 1 ms).
+        # pixels there than an object needs, and nothing can change (most frames; the search below costs about
+        # 0.9 ms on the bench frames).
         lim_d = self.fb / (WEAK_TOO_CLOSE_FACTOR * self.search_end_m)
         need = (m.disparity_px + THIN_GUARD_NEARER_PX * self.px if m.valid
                 else min(lim_d, self.d_max - CLUSTER_MARGIN_PX * self.px))
