@@ -81,11 +81,11 @@ def truth_angle_deg(disparity: np.ndarray, roi: tuple[int, int, int, int], truth
     ex = np.asarray(disparity, np.float32)[y0:y1, x0:x1]
     d = focal_px * baseline_m / truth_m
     with np.errstate(invalid="ignore"):
-        band = (np.abs(ex - d) < 0.1 * d).astype(np.uint8)
-        seed = (np.abs(ex - d) < 0.01 * d) & (band > 0)
-    _, lab = cv2.connectedComponents(band, connectivity=8)
-    if not seed.any():
-        return math.nan
+        off = np.abs(ex - d)
+        seed = off < 0.01 * d
+        if not seed.any():
+            return math.nan
+        _, lab = cv2.connectedComponents((off < 0.1 * d).astype(np.uint8), connectivity=8)
     ys, xs = np.nonzero(lab == np.bincount(lab[seed]).argmax())
     if ys.size < 3:
         return math.nan
