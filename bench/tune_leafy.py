@@ -10,6 +10,7 @@ the tuned file are then measured as the daemon flies on the leafy suite's own sc
 
     nice python bench/tune_leafy.py [--train 8] [--scenes 30] [--population 10 --generations 6]
                                     [--tune-args '--folds 3 ...'] [--also LABEL:FILE ...] [--real DIR]
+                                    [--sweep-sessions]
 
 Columns: the mean branch error (plain, symmetric; a miss = 100 %), the safety-weighted
 one the flown fitness uses (``metrics.safe_branch_error``: farther than the truth by
@@ -24,6 +25,11 @@ holds out the last third of the leafy sessions and the last two of those six (Mi
 Rocks2), and both files are also measured on the other 11 real scenes as the daemon
 flies (bench/real_ranging.py: the ranging on the pipeline's output against the same
 ranging on the ground truth).
+
+``--sweep-sessions`` adds 60 sessions of the scenes the tuner's safety sweep judges
+(``SWEEP_SESSIONS``: plain and varied branches, and the sweep's own leafy variant, on
+seeds neither sweep uses), each variant's last seed held out, so that the search sees
+the precision and the farther readings the sweep will judge its candidates on.
 """
 
 from __future__ import annotations
@@ -49,21 +55,51 @@ from uav_depth.tuning.metrics import FARTHER_TOL_PCT
 TRAIN_FROM = 1000
 
 
-def write_sessions(root: Path, n: int) -> Path:
+def _write(dest: Path, cfg, note: str) -> None:
+    """One session of one frame at ``dest``: ``cfg`` rendered, its exact disparity as the reference, the truth of
+    the nearest significant object in the centre region as its branch distance (skipped when already written)."""
     from uav_depth.core.session import SessionWriter
 
+    if (dest / "frames" / "000000_ref.npy").exists():
+        return
+    fr = render_cached(cfg)
+    ref = np.where(fr.disparity > 0, fr.disparity, np.nan).astype(np.float32)
+    SessionWriter(dest, cfg.calibration).write(
+        0, fr.left, fr.right, reference=ref,
+        meta={"branch_distance_m": fr.truth_m, "roi": list(cfg.center_roi), "scene": cfg.to_dict()},
+        reference_source={"kind": "synthetic", "exact": True, "note": f"ray-cast ground truth ({note})"})
+
+
+def write_sessions(root: Path, n: int) -> Path:
     for i in range(TRAIN_FROM, TRAIN_FROM + n):
-        dest = root / f"leafy{i}"
-        if (dest / "frames" / "000000_ref.npy").exists():
-            continue
-        cfg = scene(i)
-        fr = render_cached(cfg)
-        ref = np.where(fr.disparity > 0, fr.disparity, np.nan).astype(np.float32)
-        SessionWriter(dest, cfg.calibration).write(
-            0, fr.left, fr.right, reference=ref,
-            meta={"branch_distance_m": fr.truth_m, "roi": list(cfg.center_roi), "scene": cfg.to_dict()},
-            reference_source={"kind": "synthetic", "exact": True, "note": "ray-cast ground truth (leafy suite)"})
+        _write(root / f"leafy{i}", scene(i), "leafy suite")
     return root
+
+
+#: ``--sweep-sessions``: the scene variants the tuner's safety sweep judges (uav_depth.sim.sweep.VARIANTS), on seeds
+#: neither the safety sweep (10-14) nor the near sweep (0-9) uses; per variant (seeds, branch distances in m). The
+#: last seed of each is held out. docs/tuning.md, *Measured again (2026-12-06, morning)*.
+SWEEP_SESSIONS = {"plain": ((20, 21, 22), (0.45, 0.8, 1.4, 2.4)),
+                  "varied": ((20, 21, 22), (0.45, 0.8, 1.4, 2.4)),
+                  "leafy": ((20, 21, 22, 23), tuple(round(0.4 + 0.3 * i, 2) for i in range(9)))}
+
+
+def write_sweep_sessions(root: Path) -> tuple[list[str], list[str]]:
+    """SWEEP_SESSIONS written into ``root``, named ``<variant><seed>_<cm>`` (leafy: ``sweepleafy``, apart from
+    the leafy suite's sessions); (all their names, the held-out ones)."""
+    from uav_depth.sim.sweep import VARIANTS
+
+    names, held = [], []
+    for variant, (seeds, distances) in SWEEP_SESSIONS.items():
+        prefix = "sweepleafy" if variant == "leafy" else variant
+        for seed in seeds:
+            for d in distances:
+                name = f"{prefix}{seed}_{int(round(d * 100))}"
+                _write(root / name, VARIANTS[variant](d, seed), f"{variant} sweep scene")
+                names.append(name)
+                if seed == seeds[-1]:
+                    held.append(name)
+    return names, held
 
 
 def measure(params_file: Path, scenes: int) -> dict:
@@ -117,15 +153,23 @@ def main() -> int:
                     help="measure this parameter file too, in the same run (repeatable)")
     ap.add_argument("--real", type=Path, default=None, metavar="DIR",
                     help="the 17 Middlebury 2006 pairs: train on six of them too, report on the other 11")
+    ap.add_argument("--sweep-sessions", action="store_true",
+                    help="add plain, varied and leafy branches of the safety sweep's kind (SWEEP_SESSIONS) to the "
+                         "log, each variant's last seed held out")
     args = ap.parse_args()
     t0 = time.perf_counter()
     work = Path(args.work)
     sessions = write_sessions(work / "train", args.train)
-    holdout: tuple[str, ...] = ()
+    held: list[str] = []
+    if args.real is not None or args.sweep_sessions:
+        leafy = [f"leafy{i}" for i in range(TRAIN_FROM, TRAIN_FROM + args.train)]
+        held = leafy[len(leafy) - len(leafy) // 3:]
     if args.real is not None:
         real_train, real_report = add_real(args.real, work, sessions)
-        leafy = [f"leafy{i}" for i in range(TRAIN_FROM, TRAIN_FROM + args.train)]
-        holdout = ("--holdout", ",".join(real_train[-2:] + leafy[len(leafy) - len(leafy) // 3:]))
+        held = real_train[-2:] + held
+    if args.sweep_sessions:
+        held += write_sweep_sessions(sessions)[1]
+    holdout = ("--holdout", ",".join(held)) if held else ()
     out, report = work / "flight-tuned.yaml", work / "report"
     if (report / "store.sqlite").exists():
         (report / "store.sqlite").unlink()
