@@ -11,7 +11,9 @@ baseline and deploy/params-flight.yaml.
 Printed per parameter set: median |error|, worst error (signed), frames reported
 farther than the truth by more than 5 %, frames nearer by more than 5 % (e.g. a
 needle cloud read as the obstacle: safe, but not the truth), and frames without a
-measurement.
+measurement. ``--per-scene`` adds one line per scene; where nothing was sent it ends with
+the ranging's reason (a reading the quality floor refused names the distance it would
+have sent).
 
     .venv/bin/python bench/leafy_suite.py                 # 30 scenes, both parameter files
     .venv/bin/python bench/leafy_suite.py --scenes 60 --params flight --json
@@ -118,7 +120,7 @@ def main(argv=None) -> None:
         for r in rows:
             print(f"  {r['params']:8s} scene {r['scene']:2d} target {r['target_m']:.3f} truth {r['truth_m']:.3f} "
                   f"any {r['nearest_any_m']:.3f} sent {r['reported_m']} q {r['quality']} err {fmt_pct(r['err'])} "
-                  f"exact {fmt_pct(r['exact_err'])}")
+                  f"exact {fmt_pct(r['exact_err'])}" + (f" ({r['reason']})" if r["reported_m"] is None else ""))
 
 
 if __name__ == "__main__":
