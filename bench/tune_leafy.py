@@ -84,22 +84,21 @@ SWEEP_SESSIONS = {"plain": ((20, 21, 22), (0.45, 0.8, 1.4, 2.4)),
                   "leafy": ((20, 21, 22, 23), tuple(round(0.4 + 0.3 * i, 2) for i in range(9)))}
 
 
-def write_sweep_sessions(root: Path) -> tuple[list[str], list[str]]:
+def write_sweep_sessions(root: Path) -> list[str]:
     """SWEEP_SESSIONS written into ``root``, named ``<variant><seed>_<cm>`` (leafy: ``sweepleafy``, apart from
-    the leafy suite's sessions); (all their names, the held-out ones)."""
+    the leafy suite's sessions); the names of the held-out ones."""
     from uav_depth.sim.sweep import VARIANTS
 
-    names, held = [], []
+    held = []
     for variant, (seeds, distances) in SWEEP_SESSIONS.items():
         prefix = "sweepleafy" if variant == "leafy" else variant
         for seed in seeds:
             for d in distances:
                 name = f"{prefix}{seed}_{int(round(d * 100))}"
                 _write(root / name, VARIANTS[variant](d, seed), f"{variant} sweep scene")
-                names.append(name)
                 if seed == seeds[-1]:
                     held.append(name)
-    return names, held
+    return held
 
 
 def measure(params_file: Path, scenes: int) -> dict:
@@ -168,7 +167,7 @@ def main() -> int:
         real_train, real_report = add_real(args.real, work, sessions)
         held = real_train[-2:] + held
     if args.sweep_sessions:
-        held += write_sweep_sessions(sessions)[1]
+        held += write_sweep_sessions(sessions)
     holdout = ("--holdout", ",".join(held)) if held else ()
     out, report = work / "flight-tuned.yaml", work / "report"
     if (report / "store.sqlite").exists():
