@@ -109,7 +109,8 @@ class Measurer:
         return self.ranger.measure(DisparityResult(d, d, None)).distance_m
 
     def measure(self, left: np.ndarray, right: np.ndarray) -> dict[str, Any]:
-        """What the wire would say for this pair: reported_m (None: no measurement), too_close, quality, ms."""
+        """What the wire would say for this pair: reported_m (None: no measurement), too_close, quality, ms; and the
+        ranging's own reading: ranged_m and its 1-sigma sigma_m (m)."""
         t0 = time.perf_counter()
         result = self.pipe.run(left, right)
         m = self.ranger.measure(result)
@@ -118,7 +119,7 @@ class Measurer:
         est = Estimate(m, self.ranger.limits, now, now, 0, "bench", too_close=m.too_close)   # as the service does
         rep = distance_report(est, self.ranger.limits, now, 1.0, now)
         return {"reported_m": rep.current_distance / 100.0 if rep.valid else None,
-                "ranged_m": m.distance_m, "too_close": rep.condition == TOO_CLOSE, "condition": rep.condition,
+                "ranged_m": m.distance_m, "sigma_m": m.sigma_m, "too_close": rep.condition == TOO_CLOSE, "condition": rep.condition,
                 "quality": rep.signal_quality, "ms": ms, "reason": m.reason}
 
 
