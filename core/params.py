@@ -40,6 +40,10 @@ OPENCV_COST_MAX = 32767
 #: Verified on OpenCV 5.0.0: values 1..15 give bit-identical disparities.
 OPENCV_PRE_FILTER_CAP_FLOOR = 15
 
+#: OpenCV's 3-way SGBM divides by 100 - uniquenessRatio (verified on 5.0.0: 100 raises SIGFPE, a native
+#: crash no Python handler can catch); the other modes take 100.
+OPENCV_3WAY_UNIQUENESS_MAX = 99
+
 MODES = ("sgbm", "sgbm_3way", "hh", "hh4")
 
 
@@ -301,6 +305,10 @@ def params_from_dict(data: Any, source: str | None = None) -> StereoParams:
     sg = values["sgbm"]
     if not sg["p2"] > sg["p1"]:
         raise ConfigError("sgbm.p2", f"must be greater than sgbm.p1 ({sg['p1']})", sg["p2"], source)
+    if sg["mode"] == "sgbm_3way" and sg["uniqueness_ratio"] > OPENCV_3WAY_UNIQUENESS_MAX:
+        raise ConfigError("sgbm.uniqueness_ratio", f"must be at most {OPENCV_3WAY_UNIQUENESS_MAX} with sgbm.mode "
+                          "sgbm_3way (OpenCV's 3-way matcher divides by 100 - uniquenessRatio: 100 kills the "
+                          "process)", sg["uniqueness_ratio"], source)
     return StereoParams(sgbm=SGBMParams(**sg), wls=WLSParams(**values["wls"]),
                         compute=ComputeParams(**values["compute"]))
 

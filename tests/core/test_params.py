@@ -1,3 +1,6 @@
+import subprocess
+import sys
+
 import pytest
 import yaml
 
@@ -38,6 +41,8 @@ BAD = [
     ("odd", {"sgbm": {"block_size": 4}}, "sgbm.block_size must be odd, but got 4"),
     ("range", {"sgbm": {"uniqueness_ratio": 101}}, "sgbm.uniqueness_ratio must be between 0 and 100, but got 101"),
     ("p2-gt-p1", {"sgbm": {"p1": 500, "p2": 400}}, "sgbm.p2 must be greater than sgbm.p1 (500), but got 400"),
+    ("3way-uniqueness-100", {"sgbm": {"mode": "sgbm_3way", "uniqueness_ratio": 100}},
+     "sgbm.uniqueness_ratio must be at most 99 with sgbm.mode sgbm_3way (OpenCV's 3-way matcher divides by"),
     ("mode", {"sgbm": {"mode": "fast"}}, "sgbm.mode must be one of sgbm, sgbm_3way, hh, hh4, but got 'fast'"),
     ("type", {"sgbm": {"p1": "big"}}, "sgbm.p1 must be a number (int), but got 'big'"),
     ("float-int", {"sgbm": {"p1": 10.5}}, "sgbm.p1 must be an integer, but got 10.5"),
@@ -209,3 +214,31 @@ def test_flight_parameter_file_is_the_documented_settings():
     flight = load_params(path)
     assert flight == flight_params()
     assert flight.sgbm.mode == "sgbm_3way" and flight.compute.scale == 0.5 and flight.compute.grey
+
+
+_MATCH_AT_BOUND = """
+import sys, numpy as np
+from uav_depth.core.disparity import flight_pipeline
+from uav_depth.core.params import DEFAULT_PARAMS, SPEC_BY_KEY, params_from_dict, MODES
+for mode in MODES:
+    d = DEFAULT_PARAMS.to_dict()
+    d["sgbm"].update(mode=mode, num_disparities=32)
+    for u in range(int(SPEC_BY_KEY["sgbm.uniqueness_ratio"].hi), 90, -1):
+        d["sgbm"]["uniqueness_ratio"] = u
+        try:
+            p = params_from_dict(d)
+        except Exception:
+            continue          # the schema refuses it: fine, it never reaches OpenCV
+        rng = np.random.default_rng(0)
+        base = rng.integers(0, 256, (48, 140), dtype=np.uint8)
+        flight_pipeline(p).run(np.ascontiguousarray(base[:, :128]), np.ascontiguousarray(base[:, 6:134]))
+        print(mode, u, flush=True)
+        break
+"""
+
+
+def test_every_mode_runs_at_the_highest_uniqueness_the_schema_accepts():
+    # OpenCV's 3-way matcher dies of SIGFPE at uniqueness 100; the schema must refuse what kills the process.
+    out = subprocess.run([sys.executable, "-c", _MATCH_AT_BOUND], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, f"exit {out.returncode}: {out.stderr[-2000:]}"
+    assert out.stdout.split() == ["sgbm", "100", "sgbm_3way", "99", "hh", "100", "hh4", "100"]
