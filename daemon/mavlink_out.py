@@ -106,8 +106,6 @@ SOURCE_ENDED = "source ended"
 SHUTTING_DOWN = "shutting down"
 #: The conditions that send a DISTANCE_SENSOR; every other one sends none.
 SENDING = (MEASURING, TOO_CLOSE)
-#: The blind condition each service state implies (HEARTBEAT state name -> condition).
-STATE_BLIND = {"boot": STARTING, "critical": CAMERA_LOST, "standby": SOURCE_ENDED, "poweroff": SHUTTING_DOWN}
 #: A STATUSTEXT per condition change, at most this often.
 STATUSTEXT_MIN_S = 1.0
 
@@ -639,8 +637,8 @@ class SendClock:
     published (until it is first called, the clock looks every 10 ms; then every 100 ms and on each
     notify). ``limits``: the current
     range limits; ``state``: the HEARTBEAT system state (boot, standby, active,
-    critical, poweroff), which also names a blind condition (:data:`STATE_BLIND`);
-    ``blind``: returns a blind condition the service knows of, or None.
+    critical, poweroff), for HEARTBEAT alone; ``blind``: the blind condition the service is in
+    (its one condition: :attr:`uav_depth.daemon.service.Service.condition`), or None while it measures.
 
     Each estimate is sent at most once, with time_boot_ms = its capture time; an
     estimate not newer than the last one sent is never sent; at most
@@ -702,8 +700,7 @@ class SendClock:
         self._wake.set()
 
     def blind_condition(self) -> str | None:
-        reason = self.blind() if self.blind is not None else None
-        return reason or STATE_BLIND.get(self.state())
+        return self.blind() if self.blind is not None else None
 
     def tick(self, now: float) -> DistanceReport:
         """Evaluate the wire contract now; send the newest estimate if it is new and due."""
@@ -745,7 +742,7 @@ class SendClock:
 
     def heartbeat_state(self) -> str:
         state = self.state()
-        return "critical" if state == "active" and self.condition == STALE else state
+        return "critical" if state == "active" and self.condition in (STALE, PARAMS_UNUSABLE) else state
 
     def _loop(self) -> None:
         next_hb = self.clock()

@@ -47,7 +47,8 @@ from uav_depth.daemon.health import Health, Stats, status_line
 from uav_depth.daemon.liveview import LiveView
 from uav_depth.daemon.obstacles import Field, ObstacleSender, encoder, limits_cm
 from uav_depth.daemon.rigwatch import RigWatch
-from uav_depth.daemon.mavlink_out import MavlinkLink, SendClock
+from uav_depth.daemon.mavlink_out import (CAMERA_LOST, MEASURING, PARAMS_UNUSABLE, SHUTTING_DOWN, SOURCE_ENDED,
+                                          STARTING, MavlinkLink, SendClock)
 from uav_depth.daemon.notify import Notifier
 from uav_depth.daemon.ranging import Estimate, OutlierGate, RangeLimits, resolve_roi
 from uav_depth.daemon.reload import FileWatcher
@@ -55,10 +56,6 @@ from uav_depth.daemon.sources import Frame, FrameSource, create_source
 from uav_depth.daemon.stage import Stage, StageHolder, resolve_calibration
 
 log = logging.getLogger("uav_depth.service")
-
-#: The values of :attr:`Service.condition`.
-CONDITIONS = ("starting", "measuring", "camera_lost", "params_unusable", "shutting_down")
-
 
 @dataclass(frozen=True)
 class ShutdownReport:
@@ -147,26 +144,34 @@ class Service:
 
     @property
     def condition(self) -> str:
-        """What the service can say about the distance now, for the link (one of :data:`CONDITIONS`).
+        """The one condition that decides what goes on the wire (:mod:`uav_depth.daemon.mavlink_out`).
 
-        ``starting``: no frame processed yet; ``camera_lost``: the source stopped
-        delivering (reconnecting); ``params_unusable``: the configured parameter file
-        is missing, so the built-in manual defaults run (a refused *new* file keeps the
-        last good parameters and is not this: see ``stages.rejected``);
-        ``shutting_down``: shutdown began; ``measuring``: frames flow through a stage
-        built from the configured parameters (each estimate still says whether it
-        measured, and how old it is).
+        ``MEASURING``: frames flow through a stage built from the configured parameters, and each
+        estimate then says whether it measured and how old it is (the wire contract decides per
+        estimate). Every other value is blind, whatever the newest estimate says:
+        ``SHUTTING_DOWN`` once shutdown began; ``STARTING`` before the first frame; ``SOURCE_ENDED``
+        when a finite source ended; ``CAMERA_LOST`` while the source is reconnecting;
+        ``PARAMS_UNUSABLE`` when the configured parameter file is not what flies (missing, so the
+        built-in manual defaults run; a refused *new* file keeps the last good parameters and is not
+        this: see ``stages.rejected``).
         """
         if self._stopping.is_set():
-            return "shutting_down"
+            return SHUTTING_DOWN
+        if self.ended:
+            return SOURCE_ENDED
         if not self._first_frame.is_set():
-            return "starting"
+            return STARTING
         if not self.camera_ok:
-            return "camera_lost"
+            return CAMERA_LOST
         stage = self.stage
         if self.config.params_file is not None and (stage is None or stage.origin != str(self.config.params_file)):
-            return "params_unusable"
-        return "measuring"
+            return PARAMS_UNUSABLE
+        return MEASURING
+
+    def _blind(self) -> str | None:
+        """The service's condition when it is blind, for the send clock (None: the estimate decides)."""
+        cond = self.condition
+        return None if cond == MEASURING else cond
 
     def reload_params(self, path: Path | None = None) -> bool:
         """Re-read the parameter file (see :meth:`StageHolder.reload`). Never raises."""
@@ -235,7 +240,7 @@ class Service:
         self.link.start()
         self.clock = SendClock(self.link, cfg.mavlink, cfg.ranging.max_age_ms / 1000.0,
                                estimate=lambda: self.estimate, limits=self._limits,
-                               state=lambda: self.state).start()
+                               state=lambda: self.state, blind=self._blind).start()
         if cfg.liveview.enabled:
             c = self.calibration
             self.liveview = LiveView.bind(cfg.liveview, c.focal_px * c.baseline_m, self._view_status)

@@ -274,6 +274,35 @@ def test_parameters_hot_reload_and_rejection_while_messages_flow(tmp_path, rx, p
     assert len(after) >= 3 and all(m.signal_quality > 1 for m in after)
 
 
+def test_missing_parameter_file_is_blind_until_it_appears(tmp_path, rx):
+    # The configured file is what flies: without it the daemon runs (the watcher waits for the file) but
+    # sends no distance, says "parameters unusable", and measures once the file appears.
+    scene = {"width": 320, "height": 240, "focal_px": 200.0, "branch_distance_m": 0.8, "branch_radius_m": 0.04,
+             "seed": 1}
+    params_file = tmp_path / "missing.yaml"
+    notify = NotifySocket(tmp_path / "notify.sock")
+    daemon = Daemon(tmp_path, base_config(rx, scene, params_file), env={"NOTIFY_SOCKET": notify.path})
+    try:
+        wait(lambda: "uav-depth: blind (parameters unusable)" in rx.texts(), PATIENCE_S, daemon.proc,
+             "the blind STATUSTEXT")
+        # the frames flow meanwhile (READY and frames processed), two seconds of them
+        wait(lambda: "READY=1" in notify.lines(), PATIENCE_S, daemon.proc, "READY=1")
+        t_ready = time.monotonic()
+        wait(lambda: time.monotonic() - t_ready > 2.0, PATIENCE_S, daemon.proc, "2 s of frames")
+        blind = rx.of("DISTANCE_SENSOR")
+        save_params(PARAMS_64, params_file)
+        t_file = time.monotonic()
+        after = [m for _, m in readings(rx, 3, daemon.proc, since=t_file, what="readings once the file exists")]
+        code, _ = daemon.terminate(timeout=SHUTDOWN_S + 10)
+    finally:
+        daemon.kill()
+        notify.close()
+    assert code == 0, daemon.stderr()
+    assert blind == [], f"{len(blind)} DISTANCE_SENSOR sent while flying the built-in defaults"
+    assert "uav-depth: measuring" in rx.texts()
+    assert len(after) >= 3 and all(m.signal_quality > 1 for m in after)
+
+
 def test_disk_full_stops_logging_and_the_daemon_keeps_flying(tmp_path, rx, params_file):
     scene = {"width": 320, "height": 240, "focal_px": 200.0, "branch_distance_m": 0.8, "branch_radius_m": 0.04,
              "seed": 1}
