@@ -156,6 +156,38 @@ SPECS: tuple[Spec, ...] = (
 )
 
 SPEC_BY_KEY: dict[str, Spec] = {s.key: s for s in SPECS}
+
+#: Rules between keys, declared once: the loader checks them (:func:`params_from_dict`) and the tuner's search
+#: spaces decode inside them (:func:`accepted_range`), so no candidate is built that the schema refuses.
+#: (key, other, gap): ``key`` must be at least ``other`` + gap (SGBM needs P2 > P1).
+ABOVE: tuple[tuple[str, str, int], ...] = (("sgbm.p2", "sgbm.p1", 1),)
+#: (key, other, when, cap, why): ``key`` must be at most ``cap`` while ``other`` is ``when``.
+CAPPED_WHEN: tuple[tuple[str, str, Any, int, str], ...] = (
+    ("sgbm.uniqueness_ratio", "sgbm.mode", "sgbm_3way", OPENCV_3WAY_UNIQUENESS_MAX,
+     "OpenCV's 3-way matcher divides by 100 - uniquenessRatio: 100 kills the process"),
+)
+#: The largest value OpenCV computes with, whatever the image (:func:`check_computable`): SGBM's 16-bit costs.
+COMPUTABLE_MAX: dict[str, int] = {"sgbm.p1": OPENCV_COST_MAX, "sgbm.p2": OPENCV_COST_MAX}
+
+
+def accepted_range(key: str, values: Mapping[str, Any], limits: Mapping[str, float] | None = None
+                   ) -> tuple[float, float]:
+    """The inclusive range of numeric ``key`` that a file the daemon flies may hold, given the other keys'
+    ``values`` (dotted key -> value; a key not in it does not narrow the range): the key's bounds, OpenCV's
+    :data:`COMPUTABLE_MAX`, and the rules between keys (:data:`ABOVE`, :data:`CAPPED_WHEN`). ``limits``: further
+    caps (key -> largest value) a caller applies to any key, and so to the keys that must stay above it.
+    A ``positive`` key's lower bound is exclusive (its rule)."""
+    spec = SPEC_BY_KEY[key]
+    lo, hi = float(spec.lo), float(min(spec.hi, COMPUTABLE_MAX.get(key, spec.hi), (limits or {}).get(key, spec.hi)))
+    for k, other, gap in ABOVE:
+        if k == key and values.get(other) is not None:
+            lo = max(lo, float(values[other] + gap))
+        if other == key:                # room for the key that must stay above this one
+            hi = min(hi, accepted_range(k, {}, limits)[1] - gap)
+    for k, other, when, cap, _ in CAPPED_WHEN:
+        if k == key and values.get(other) == when:
+            hi = min(hi, float(cap))
+    return lo, hi
 SECTIONS: tuple[str, ...] = tuple(dict.fromkeys(s.section for s in SPECS))
 #: Top-level keys that are accepted and carried but are not parameters.
 META_KEYS = ("provenance",)
@@ -302,15 +334,24 @@ def params_from_dict(data: Any, source: str | None = None) -> StereoParams:
         for spec in (s for s in SPECS if s.section == section):
             raw = given.get(spec.name, spec.default)
             values[section][_attr(spec.name)] = spec.check(raw, source)
-    sg = values["sgbm"]
-    if not sg["p2"] > sg["p1"]:
-        raise ConfigError("sgbm.p2", f"must be greater than sgbm.p1 ({sg['p1']})", sg["p2"], source)
-    if sg["mode"] == "sgbm_3way" and sg["uniqueness_ratio"] > OPENCV_3WAY_UNIQUENESS_MAX:
-        raise ConfigError("sgbm.uniqueness_ratio", f"must be at most {OPENCV_3WAY_UNIQUENESS_MAX} with sgbm.mode "
-                          "sgbm_3way (OpenCV's 3-way matcher divides by 100 - uniquenessRatio: 100 kills the "
-                          "process)", sg["uniqueness_ratio"], source)
-    return StereoParams(sgbm=SGBMParams(**sg), wls=WLSParams(**values["wls"]),
+    _check_rules(values, source)
+    return StereoParams(sgbm=SGBMParams(**values["sgbm"]), wls=WLSParams(**values["wls"]),
                         compute=ComputeParams(**values["compute"]))
+
+
+def _check_rules(values: Mapping[str, Mapping[str, Any]], source: str | None) -> None:
+    """The rules between keys (:data:`ABOVE`, :data:`CAPPED_WHEN`) on validated values by section."""
+    def get(key: str) -> Any:
+        section, name = key.split(".")
+        return values[section][_attr(name)]
+
+    for key, other, gap in ABOVE:
+        if get(key) < get(other) + gap:
+            rule = "greater than" if gap == 1 else f"at least {gap} above"
+            raise ConfigError(key, f"must be {rule} {other} ({get(other)})", get(key), source)
+    for key, other, when, cap, why in CAPPED_WHEN:
+        if get(other) == when and get(key) > cap:
+            raise ConfigError(key, f"must be at most {cap} with {other} {when} ({why})", get(key), source)
 
 
 def disparity_search_range(focal_px: float, baseline_m: float, near_m: float, far_m: float = math.inf,
@@ -341,10 +382,10 @@ def check_computable(params: StereoParams, source: str | None = None) -> StereoP
     explores them, and the pipeline answers an overflow with an all-NaN map); a file
     the daemon flies or ``params check`` passes must also satisfy this.
     """
-    sg = params.sgbm
-    for key, value in (("sgbm.p1", sg.p1), ("sgbm.p2", sg.p2)):
-        if value > OPENCV_COST_MAX:
-            raise ConfigError(key, f"must be at most {OPENCV_COST_MAX} (OpenCV's SGBM keeps costs in 16-bit "
+    for key, most in COMPUTABLE_MAX.items():
+        value = params.get(key)
+        if value > most:
+            raise ConfigError(key, f"must be at most {most} (OpenCV's SGBM keeps costs in 16-bit "
                                    "integers; above it they wrap and nothing is measured)", value, source)
     return params
 
