@@ -1,7 +1,7 @@
 """What the tuner's safety sweep refuses: the stored candidates of a ``uav-depth tune`` run, read again on the
 sweep at the log's rig, frame by frame against the base.
 
-For each fold's best N candidates (training order, as ``tuning.study.select`` offers them) this prints the
+For each fold's best N candidates (training order, as ``tuning.choice.select`` offers them) this prints the
 frames the candidate reads farther than the truth by more than 2 % and the base does not (with the base's own
 reading there: too close / no measurement, or its error), and the frames inside the minimum range it sends as
 distances. It is how docs/tuning.md (*Measured again: the default budget*, paragraph 3) found that the sweep's
@@ -26,7 +26,7 @@ from uav_depth.tuning.metrics import branch_signed, is_farther
 from uav_depth.tuning.objective import FITNESS, frame_ranger
 from uav_depth.tuning.safety import SafetyScreen
 from uav_depth.tuning.store import RunStore, fold_study_name
-from uav_depth.tuning.study import top_candidates
+from uav_depth.tuning.choice import top_candidates
 
 
 def _reading(d: float | None, truth: float) -> str:

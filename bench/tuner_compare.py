@@ -45,7 +45,8 @@ def main() -> int:
     from uav_depth.tuning.objective import FITNESS
     from uav_depth.tuning.report import PAPER_CHANGE, comparison
     from uav_depth.tuning.store import RunStore
-    from uav_depth.tuning.study import Study, StudyConfig, full_scores
+    from uav_depth.tuning.choice import full_scores
+    from uav_depth.tuning.study import Study, StudyConfig
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", default="motorcycle", help="'motorcycle' or a log directory")

@@ -25,7 +25,8 @@ import numpy as np
 
 from uav_depth.core.params import StereoParams
 
-from uav_depth.tuning.space import PaperSpace, SchemaSpace, Space
+from uav_depth.tuning.paper_space import PaperSpace
+from uav_depth.tuning.space import SchemaSpace, Space
 
 
 class Optimizer(Protocol):

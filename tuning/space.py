@@ -1,21 +1,19 @@
 """Search spaces: how a genome becomes validated :class:`StereoParams`.
 
 Two spaces, one contract (:class:`Space`): ``sample(rng)`` draws a genome,
-``decode(genome)`` returns the parameter *changes* (dotted schema keys) it
-stands for, ``encode(params)`` goes back. Every range comes from
-:data:`uav_depth.core.params.SPECS`; nothing here restates one. Candidates
-are always built with ``base.replace(**changes)``, so the daemon's own schema
-validates each one, and keys a space does not tune keep the base values (new
-schema keys included).
+``decode(genome, base)`` returns the parameter *changes* (dotted schema keys) it
+stands for, ``encode(params)`` goes back. Every range comes from the schema
+(:data:`uav_depth.core.params.SPECS` and :func:`~uav_depth.core.params.accepted_range`, which holds the rules
+between keys and OpenCV's limits); nothing here restates one. Candidates are always built with
+``base.replace(**changes)``, so the daemon's own schema validates each one, and keys a space does not tune
+keep the base values (new schema keys included).
 
-- :class:`PaperSpace` is the faithful encoding of Lin et al. (2025): 29 integer
-  genes 1..10, read as decimal digits.
-- :class:`SchemaSpace` is the improved space: one unit-interval gene per
+- :class:`~uav_depth.tuning.paper_space.PaperSpace` is the encoding of Lin et al. (2025): 29 integer
+  genes 1..10, read as decimal digits, decoded into what OpenCV accepts.
+- :class:`SchemaSpace` (here) is the improved space: one unit-interval gene per
   schema key, with a scale that suits the key (log for penalties and lambda),
   bounds inside what OpenCV can compute, and the rules of the schema (odd,
-  multiple of 16, p2 > p1) declared so every decoded candidate is valid.
-
-Longer than 400 lines because the paper's 29-gene encoding and the schema-derived space share their bounds and constraints in one place.
+  multiple of 16, the rules between keys) declared so every decoded candidate is valid.
 """
 
 from __future__ import annotations
@@ -27,8 +25,8 @@ from typing import Any, Mapping, Protocol, Sequence
 import numpy as np
 
 from uav_depth.core.errors import ConfigError
-from uav_depth.core.params import (OPENCV_COST_MAX, OPENCV_PRE_FILTER_CAP_FLOOR, SPEC_BY_KEY, SPECS, Spec,
-                                     StereoParams)
+from uav_depth.core.params import (ABOVE, CAPPED_WHEN, OPENCV_COST_MAX, OPENCV_PRE_FILTER_CAP_FLOOR, SPEC_BY_KEY,
+                                     SPECS, StereoParams, accepted_range)
 
 
 class Space(Protocol):
@@ -51,142 +49,6 @@ class Space(Protocol):
 def build(space: Space, genome: Sequence[float], base: StereoParams) -> StereoParams:
     """The candidate a genome stands for; raises ConfigError if the schema rejects it."""
     return base.replace(**space.decode(genome, base))
-
-
-def spec_for_symbol(symbol: str) -> Spec:
-    """The schema key that carries one of the paper's symbols (alpha, beta, ..., sigma)."""
-    for spec in SPECS:
-        if spec.paper == symbol:
-            return spec
-    raise KeyError(f"no parameter-file key carries the paper's symbol {symbol!r}")
-
-
-# -- faithful: the paper's 29 decimal genes -----------------------------------------------------------------------
-
-#: Gene values are integers GENE_LO..GENE_HI (the paper's "1..10").
-GENE_LO, GENE_HI = 1, 10
-
-#: The paper's layout, in gene order: (symbol, number of genes, how the number is read).
-#: "number": k genes read as the paper's alpha, giving 1..10**k.
-#: "above:alpha": beta = alpha + number(x6..x10), so alpha < beta <= 200000 holds by construction.
-#: "hundredths": sigma = ((x28-1)*10 + (x29-1)) / 100, 0..0.99 in steps of 0.01.
-PAPER_LAYOUT: tuple[tuple[str, int, str], ...] = (
-    ("alpha", 5, "number"),
-    ("beta", 5, "above:alpha"),
-    ("Delta", 2, "number"),
-    ("eta", 2, "number"),
-    ("gamma", 2, "number"),
-    ("W", 3, "number"),
-    ("delta", 3, "number"),
-    ("lambda", 5, "number"),
-    ("sigma", 2, "hundredths"),
-)
-
-
-def decode_number(genes: Sequence[int]) -> int:
-    """The paper's reading of k genes: (x1-1)*10**(k-1) + ... + (x_{k-1}-1)*10 + x_k, in 1..10**k.
-
-    It is a bijection: all digits but the last are x-1 (0..9), the last is x (1..10).
-    """
-    value = 0
-    for g in genes[:-1]:
-        value = value * 10 + (int(g) - 1)
-    return value * 10 + int(genes[-1])
-
-
-def encode_number(value: int, k: int) -> list[int]:
-    """Inverse of :func:`decode_number` for 1 <= value <= 10**k."""
-    if not 1 <= value <= 10 ** k:
-        raise ValueError(f"{value} cannot be written with {k} of the paper's genes (1..{10 ** k})")
-    last = (value - 1) % 10 + 1
-    rest = (value - last) // 10
-    digits = []
-    for _ in range(k - 1):
-        digits.append(rest % 10 + 1)
-        rest //= 10
-    return digits[::-1] + [last]
-
-
-@dataclass(frozen=True)
-class PaperSpace:
-    """The paper's encoding: 29 integer genes in 1..10 (see :data:`PAPER_LAYOUT`).
-
-    Which schema key each symbol sets is read from ``Spec.paper`` in the schema;
-    the decoded value is validated by the schema when the candidate is built
-    (sigma 0 from x28 = x29 = 1 is therefore a failed candidate, as the schema
-    requires sigma > 0).
-    """
-
-    name: str = "paper"
-
-    @property
-    def size(self) -> int:
-        return sum(k for _, k, _ in PAPER_LAYOUT)
-
-    @property
-    def low(self) -> list[int]:
-        return [GENE_LO] * self.size
-
-    @property
-    def up(self) -> list[int]:
-        return [GENE_HI] * self.size
-
-    def slices(self) -> dict[str, slice]:
-        out, i = {}, 0
-        for symbol, k, _ in PAPER_LAYOUT:
-            out[symbol] = slice(i, i + k)
-            i += k
-        return out
-
-    def sample(self, rng: np.random.Generator) -> np.ndarray:
-        return rng.integers(GENE_LO, GENE_HI + 1, size=self.size).astype(np.int64)
-
-    def decode_symbols(self, genome: Sequence[float]) -> dict[str, float]:
-        """The paper's symbols decoded from a genome (no schema check)."""
-        g = [int(x) for x in genome]
-        if len(g) != self.size or any(not GENE_LO <= x <= GENE_HI for x in g):
-            raise ValueError(f"a paper genome has {self.size} genes in {GENE_LO}..{GENE_HI}, got {g}")
-        out: dict[str, float] = {}
-        i = 0
-        for symbol, k, how in PAPER_LAYOUT:
-            genes = g[i:i + k]
-            i += k
-            if how == "number":
-                out[symbol] = decode_number(genes)
-            elif how.startswith("above:"):
-                out[symbol] = out[how.split(":")[1]] + decode_number(genes)
-            elif how == "hundredths":
-                out[symbol] = ((genes[0] - 1) * 10 + (genes[1] - 1)) / 100.0
-            else:  # pragma: no cover - the layout above is the only input
-                raise ValueError(how)
-        return out
-
-    def decode(self, genome: Sequence[float], base: StereoParams | None = None) -> dict[str, Any]:
-        return {spec_for_symbol(sym).key: value for sym, value in self.decode_symbols(genome).items()}
-
-    def encode(self, params: StereoParams) -> np.ndarray:
-        """Genes of ``params`` when the paper's encoding can hold them exactly, else ValueError."""
-        genes: list[int] = []
-        sym = {s: params.get(spec_for_symbol(s).key) for s, _, _ in PAPER_LAYOUT}
-        for symbol, k, how in PAPER_LAYOUT:
-            if how == "number":
-                genes += encode_number(int(sym[symbol]), k)
-            elif how.startswith("above:"):
-                genes += encode_number(int(sym[symbol]) - int(sym[how.split(":")[1]]), k)
-            else:
-                hundredths = round(float(sym[symbol]) * 100)
-                if not 0 <= hundredths <= 99 or abs(hundredths / 100 - sym[symbol]) > 1e-9:
-                    raise ValueError(f"sigma {sym[symbol]} is not one of the paper's 0..0.99")
-                genes += [hundredths // 10 + 1, hundredths % 10 + 1]
-        return np.asarray(genes, dtype=np.int64)
-
-    def describe(self) -> list[dict[str, Any]]:
-        out, i = [], 1
-        for symbol, k, how in PAPER_LAYOUT:
-            out.append({"symbol": symbol, "key": spec_for_symbol(symbol).key, "genes": f"x{i}..x{i + k - 1}",
-                        "decoding": how, "paper_range": spec_for_symbol(symbol).paper_range})
-            i += k
-        return out
 
 
 # -- improved: one unit gene per schema key -----------------------------------------------------------------------
@@ -223,12 +85,29 @@ FLOWN_KEYS: tuple[str, ...] = tuple(k for k in DEFAULT_KEYS if k not in NOT_FLOW
 #: when the search has a frame-time budget (``--max-ms``), so the Pareto front has fast options.
 SPEED_KEYS: tuple[str, ...] = tuple(k for k in ("compute.scale", "compute.grey") if k in SPEC_BY_KEY)
 
-#: The largest P1/P2 a candidate may win with (study.fragile_reason) and so the largest the improved space
-#: searches: half of OpenCV's 16-bit cost limit. SGBM sums penalties along its paths in 16-bit costs, which
-#: wrap a little above this on some images (issue 12: p2 27500 fine on one image, 29666 broke others), so
-#: searching above it only spends evaluations on candidates that cannot be chosen. The paper's space keeps
-#: the paper's ranges (faithful mode); its candidates above this are refused by the same rule.
+#: The largest P1/P2 a candidate may win with (choice.fragile_reason) and so the largest either space
+#: decodes: half of OpenCV's 16-bit cost limit. SGBM sums penalties along its paths in 16-bit costs, which
+#: wrap a little above this on some images (p2 27500 was fine on one real pair, 29666 broke others), so
+#: searching above it only spends evaluations on candidates that cannot be chosen.
 WINNABLE_COST_MAX = OPENCV_COST_MAX // 2
+#: The tuner's caps on top of what the schema accepts (core.params.accepted_range's ``limits``).
+SEARCH_LIMITS: dict[str, float] = {"sgbm.p1": WINNABLE_COST_MAX, "sgbm.p2": WINNABLE_COST_MAX}
+
+
+def search_range(key: str, values: Mapping[str, Any]) -> tuple[float, float]:
+    """Where a space may put ``key`` given the other keys' ``values`` (the base's, overridden by what the
+    genome decoded before it): what a flown file may hold, capped by :data:`SEARCH_LIMITS`."""
+    return accepted_range(key, values, SEARCH_LIMITS)
+
+
+def depends_on(key: str) -> tuple[str, ...]:
+    """The keys whose value narrows ``key``'s range (core.params.ABOVE, CAPPED_WHEN): decoded before it."""
+    return tuple(o for k, o, *_ in ABOVE if k == key) + tuple(o for k, o, *_ in CAPPED_WHEN if k == key)
+
+
+def flat(params: StereoParams) -> dict[str, Any]:
+    """Every key of ``params`` by its dotted name."""
+    return {s.key: params.get(s.key) for s in SPECS}
 
 #: Significant digits a decoded float keeps.
 FLOAT_DIGITS = 4
@@ -243,8 +122,9 @@ class Dim:
     """One gene u in [0, 1] mapped to one schema key.
 
     ``kind``: "float", "int", "odd", "multiple_of_16", "choice", "bool".
-    ``lo``/``hi``: inclusive search bounds (inside the schema's). ``above``: a key
-    decoded earlier whose value + 1 is the lower bound instead of ``lo`` (p2 > p1).
+    ``lo``/``hi``: inclusive search bounds (inside the schema's). ``narrowed_by``: keys whose value narrows
+    this one's range (core.params' rules between keys: p2 above p1, uniqueness capped with the 3-way mode);
+    the space decodes them first and passes the narrowed bounds to :meth:`decode`.
     ``shift``: a log scale searches log(v + shift), so that 0 or -1 fit on it.
     """
 
@@ -254,7 +134,7 @@ class Dim:
     lo: float = 0.0
     hi: float = 1.0
     choices: tuple[Any, ...] = ()
-    above: str | None = None
+    narrowed_by: tuple[str, ...] = ()
     shift: float = 0.0
 
     def _t(self, v: float) -> float:
@@ -263,8 +143,10 @@ class Dim:
     def _inv(self, t: float) -> float:
         return math.exp(t) - self.shift if self.scale == "log" else t
 
-    def _grid(self, lo: float, hi: float) -> tuple[float, float, float]:
-        """(first, last, step) of the values this kind allows between lo and hi."""
+    def _grid(self, lo: float | None, hi: float | None) -> tuple[float, float, float]:
+        """(first, last, step) of the values this kind allows between lo and hi (default: the dim's)."""
+        lo = self.lo if lo is None else lo
+        hi = self.hi if hi is None else hi
         if self.kind == "odd":
             first = lo if int(lo) % 2 == 1 else lo + 1
             last = hi if int(hi) % 2 == 1 else hi - 1
@@ -273,12 +155,12 @@ class Dim:
             return 16 * math.ceil(lo / 16), 16 * math.floor(hi / 16), 16
         return lo, hi, 1 if self.kind == "int" else 0
 
-    def decode(self, u: float, lo: float | None = None) -> Any:
+    def decode(self, u: float, lo: float | None = None, hi: float | None = None) -> Any:
         u = min(max(float(u), 0.0), 1.0)
         if self.kind in ("choice", "bool"):
             opts = self.choices if self.kind == "choice" else (False, True)
             return opts[min(int(u * len(opts)), len(opts) - 1)]
-        first, last, step = self._grid(self.lo if lo is None else lo, self.hi)
+        first, last, step = self._grid(lo, hi)
         if (step == 2 or step == 16) and self.scale != "log":
             # uniform over the allowed values: pick by index
             n = int((last - first) // step) + 1
@@ -293,11 +175,11 @@ class Dim:
         # the parameter file stays readable, and near-equal floats share one cache entry.
         return float(min(max(float(f"{v:.{FLOAT_DIGITS}g}"), first), last))
 
-    def encode(self, value: Any, lo: float | None = None) -> float:
+    def encode(self, value: Any, lo: float | None = None, hi: float | None = None) -> float:
         if self.kind in ("choice", "bool"):
             opts = self.choices if self.kind == "choice" else (False, True)
             return (opts.index(value) + 0.5) / len(opts)
-        first, last, step = self._grid(self.lo if lo is None else lo, self.hi)
+        first, last, step = self._grid(lo, hi)
         if (step == 2 or step == 16) and self.scale != "log":
             n = int((last - first) // step) + 1
             k = min(max(round((value - first) / step), 0), n - 1)
@@ -306,24 +188,29 @@ class Dim:
         t0, t1 = self._t(first), self._t(last)
         return 0.5 if t1 == t0 else (self._t(value) - t0) / (t1 - t0)
 
+    def narrowed(self, values: Mapping[str, Any]) -> tuple[float | None, float | None]:
+        """(lo, hi) of this key given the other keys' ``values`` (None, None when nothing narrows it)."""
+        if not self.narrowed_by:
+            return None, None
+        lo, hi = search_range(self.key, values)
+        lo, hi = max(self.lo, lo), min(self.hi, hi)
+        return lo, max(lo, hi)      # a base above the search's cap leaves one value: the schema's floor
+
     def describe(self) -> dict[str, Any]:
         d: dict[str, Any] = {"key": self.key, "kind": self.kind, "scale": self.scale}
         if self.kind in ("choice", "bool"):
             d["choices"] = list(self.choices) if self.kind == "choice" else [False, True]
         else:
-            d["lo"] = f"{self.above} + 1" if self.above else self.lo
-            d["hi"] = self.hi
+            d["lo"], d["hi"] = self.lo, self.hi
+            if self.narrowed_by:
+                d["narrowed_by"] = list(self.narrowed_by)
         return d
 
 
 def dim_for(key: str, scale: str | None = None) -> Dim:
-    """The search dimension of one schema key, bounds from its Spec.
-
-    Tightened only by facts about OpenCV: penalties stop at WINNABLE_COST_MAX
-    (above it SGBM's 16-bit costs wrap on some images, and such a candidate may not
-    win), p1 stops one below so p2 > p1 always has room, and preFilterCap starts at
-    OpenCV's floor.
-    """
+    """The search dimension of one schema key: its range from :func:`search_range` (the schema's bounds,
+    OpenCV's limits, the tuner's cap on P1/P2), and preFilterCap from OpenCV's floor (below it every value
+    gives the same map)."""
     if key not in SPEC_BY_KEY:
         raise ConfigError("--keys", f"must name parameter-file keys (known: {', '.join(SPEC_BY_KEY)})", key)
     spec = SPEC_BY_KEY[key]
@@ -334,14 +221,8 @@ def dim_for(key: str, scale: str | None = None) -> Dim:
         return Dim(key, "choice", choices=tuple(spec.choices))
     if spec.kind not in (int, float) or spec.lo is None or spec.hi is None:
         raise ConfigError("--keys", "must name a numeric, choice or boolean key to tune", key)
-    lo, hi = float(spec.lo), float(spec.hi)
-    above = None
-    if key == "sgbm.p1":
-        hi = min(hi, WINNABLE_COST_MAX) - 1
-    elif key == "sgbm.p2":
-        hi = min(hi, WINNABLE_COST_MAX)
-        above = "sgbm.p1"
-    elif key == "sgbm.pre_filter_cap":
+    lo, hi = search_range(key, {})
+    if key == "sgbm.pre_filter_cap":
         lo = max(lo, OPENCV_PRE_FILTER_CAP_FLOOR)
     if spec.kind is float and spec.rule == "positive" and lo <= 0:
         lo = hi * POSITIVE_FLOOR_FRACTION
@@ -351,7 +232,19 @@ def dim_for(key: str, scale: str | None = None) -> Dim:
     shift = 0.0
     if scale == "log" and lo <= 0:
         shift = 1.0 - lo  # log(v - lo + 1): 0 at the lower bound
-    return Dim(key, kind, scale, lo, hi, above=above, shift=shift)
+    return Dim(key, kind, scale, lo, hi, narrowed_by=depends_on(key), shift=shift)
+
+
+def decode_order(keys: Sequence[str]) -> tuple[str, ...]:
+    """``keys`` (each once) with every key after the tuned keys that narrow it (:func:`depends_on`)."""
+    out: list[str] = []
+    for key in dict.fromkeys(keys):
+        for dep in depends_on(key):
+            if dep in keys and dep not in out:
+                out.append(dep)
+        if key not in out:
+            out.append(key)
+    return tuple(out)
 
 
 @dataclass(frozen=True)
@@ -363,10 +256,7 @@ class SchemaSpace:
     dims: tuple[Dim, ...] = field(init=False)
 
     def __post_init__(self) -> None:
-        keys = tuple(dict.fromkeys(self.keys))
-        if "sgbm.p2" in keys and "sgbm.p1" in keys and keys.index("sgbm.p2") < keys.index("sgbm.p1"):
-            keys = tuple(k for k in keys if k != "sgbm.p2")
-            keys = keys[:keys.index("sgbm.p1") + 1] + ("sgbm.p2",) + keys[keys.index("sgbm.p1") + 1:]
+        keys = decode_order(self.keys)
         object.__setattr__(self, "keys", keys)
         object.__setattr__(self, "dims", tuple(dim_for(k) for k in keys))
 
@@ -388,22 +278,16 @@ class SchemaSpace:
     def decode(self, genome: Sequence[float], base: StereoParams | None = None) -> dict[str, Any]:
         if len(genome) != self.size:
             raise ValueError(f"a {self.name} genome has {self.size} genes, got {len(genome)}")
+        values = flat(base or StereoParams())     # keys not tuned narrow the others at the base's value
         out: dict[str, Any] = {}
         for dim, u in zip(self.dims, genome):
-            lo = None
-            if dim.above is not None:
-                # p2 tuned without p1: above the base's p1 (the caller's base is validated)
-                ref = out.get(dim.above, (base or StereoParams()).get(dim.above))
-                lo = ref + 1
-            out[dim.key] = dim.decode(u, lo)
+            out[dim.key] = values[dim.key] = dim.decode(u, *dim.narrowed(values))
         return out
 
     def encode(self, params: StereoParams) -> np.ndarray:
-        out = []
-        for dim in self.dims:
-            lo = params.get(dim.above) + 1 if dim.above else None
-            out.append(dim.encode(params.get(dim.key), lo))
-        return np.asarray(out, dtype=np.float64)
+        values = flat(params)
+        return np.asarray([dim.encode(values[dim.key], *dim.narrowed(values)) for dim in self.dims],
+                          dtype=np.float64)
 
     def describe(self) -> list[dict[str, Any]]:
         return [d.describe() for d in self.dims]

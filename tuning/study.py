@@ -11,7 +11,8 @@ parameters, the frames' digest, the fitness and :data:`EVAL_VERSION`; elites and
 re-proposed parameter sets are answered from that cache (memory, then the run
 store), which is also how ``--resume`` replays a killed run to the very same end.
 
-Longer than 400 lines because the study's loop, its held-out choice and its resume are one orchestration over the store.
+After the search, :mod:`.choice` chooses among the best candidates on frames the search did not see and
+:mod:`.front` re-times the Pareto front under a frame-time budget.
 """
 
 from __future__ import annotations
@@ -19,7 +20,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import statistics
 import threading
 import time
 from dataclasses import asdict, dataclass, field
@@ -27,15 +27,14 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from uav_depth.core.disparity import flight_pipeline
 from uav_depth.core.errors import ConfigError, UavDepthError
-from uav_depth.core.params import OPENCV_COST_MAX, StereoParams, params_from_dict
+from uav_depth.core.params import StereoParams, params_from_dict
 
-from uav_depth.tuning.executor import Executor, run_all
+from uav_depth.tuning.executor import Executor
 from uav_depth.tuning.frames import FrameSet
-from uav_depth.tuning.objective import FITNESS, OK, Evaluation, Task, failed
+from uav_depth.tuning.objective import FITNESS, Evaluation, Task, failed
 from uav_depth.tuning.optimizers import OPTIMIZERS, make_space
-from uav_depth.tuning.space import WINNABLE_COST_MAX, describe_space
+from uav_depth.tuning.space import describe_space
 from uav_depth.tuning.store import RunStore
 
 #: Bump when the meaning of an evaluation changes: old cached evaluations are then not reused.
@@ -278,212 +277,6 @@ class Study:
 def _short(value: Any) -> str:
     text = json.dumps(value, default=str)
     return text if len(text) <= 60 else text[:57] + "..."
-
-
-# -- after the search: held-out scores, Pareto front, time budget -------------------------------------------------
-
-def full_scores(executor: Executor, params: Sequence[StereoParams], framesets: Sequence[str],
-                convention: str | None = None) -> dict:
-    """Every metric (in ``convention``) of each params on each named frame set: {(i, set): Evaluation}."""
-    tasks, index = [], []
-    for i, p in enumerate(params):
-        for name in framesets:
-            tasks.append(Task(p.to_dict(), name, full=True, convention=convention))
-            index.append((i, name))
-    return dict(zip(index, run_all(executor, tasks)))
-
-
-def pareto_front(points: Sequence[tuple[float, float, Any]]) -> list[tuple[float, float, Any]]:
-    """Non-dominated (utility, ms, item) points (larger utility, smaller ms), fastest first."""
-    front: list[tuple[float, float, Any]] = []
-    best = -math.inf
-    for u, ms, item in sorted(points, key=lambda p: (p[1], -p[0])):
-        if u > best:
-            front.append((u, ms, item))
-            best = u
-    return front
-
-
-def search_front(store: RunStore, fitness_name: str) -> list[dict[str, Any]]:
-    """Pareto front of (fitness, ms per frame) over every stored evaluation, with the search's own timings."""
-    fitness = FITNESS[fitness_name]
-    pts = [(fitness.utility(ev.value), ev.ms, (key, ev)) for key, params, ev in store.evaluations()
-           if ev.status == OK and math.isfinite(ev.ms) and not params.get("invalid")]
-    return [{"key": key, "value": ev.value, "ms": ms} for _, ms, (key, ev) in pareto_front(pts)]
-
-
-def time_params(params: StereoParams, frames: FrameSet, repeats: int = 3) -> float:
-    """Median over ``repeats`` of the mean ms per frame of what flies (``flight_pipeline``: no WLS
-    smoothing), in this process with OpenCV's default threads (how the daemon runs it)."""
-    pipe = flight_pipeline(params)
-    samples = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        for f in frames.frames:
-            pipe.run(f.left, f.right)
-        samples.append((time.perf_counter() - t0) * 1000.0 / max(1, len(frames)))
-    return float(statistics.median(samples))
-
-
-@dataclass(frozen=True)
-class BudgetChoice:
-    params: StereoParams | None
-    value: float
-    ms: float
-    front: list[dict[str, Any]]
-    reason: str | None = None
-
-
-def choose_under_budget(store: RunStore, fitness_name: str, frames: FrameSet, max_ms: float,
-                        max_points: int = 12) -> BudgetChoice:
-    """The best stored candidate whose re-timed frame time is within ``max_ms``.
-
-    The search's own timings come from busy workers and are only a guide: the
-    Pareto front of (fitness, ms) over every stored evaluation is re-timed here,
-    side by side, and the choice is made on those times.
-    """
-    fitness = FITNESS[fitness_name]
-    pts = [(fitness.utility(ev.value), ev.ms, (key, params, ev)) for key, params, ev in store.evaluations()
-           if ev.status == OK and math.isfinite(ev.ms) and not params.get("invalid")]
-    front = pareto_front(pts)
-    if len(front) > max_points:  # keep the extremes and an even spread between
-        idx = np.unique(np.linspace(0, len(front) - 1, max_points).round().astype(int))
-        front = [front[i] for i in idx]
-    timed = []
-    for u, ms, (key, params, ev) in front:
-        p = params_from_dict(params)
-        timed.append({"key": key, "value": ev.value, "search_ms": ms, "ms": time_params(p, frames), "params": params})
-    fits = [t for t in timed if t["ms"] <= max_ms]
-    if not fits:
-        fastest = min((t["ms"] for t in timed), default=math.nan)
-        return BudgetChoice(None, math.nan, math.nan, timed,
-                            f"no evaluated candidate runs within {max_ms:g} ms per frame (fastest {fastest:.0f} ms)")
-    best = max(fits, key=lambda t: fitness.utility(t["value"]))
-    return BudgetChoice(params_from_dict(best["params"]), best["value"], best["ms"], timed)
-
-
-# -- the choice: on frames the search did not see ------------------------------------------------------------------
-
-#: How many of the best training candidates the held-out choice is among (study.select): the best SELECT_TOP
-#: that may win; each one set aside (fragile, or refused by the safety sweep) is replaced by the next best.
-SELECT_TOP = 6
-#: How deep in the training ranking those replacements may go (tune passes this many to study.select).
-SELECT_POOL = 30
-
-
-def fragile_reason(params: StereoParams) -> str | None:
-    """Why ``params`` may not win however well it scored (a cliff near it), or None."""
-    for name in ("p1", "p2"):
-        value = getattr(params.sgbm, name)
-        if value > WINNABLE_COST_MAX:       # the same bound the improved space searches up to
-            return (f"sgbm.{name}={value} is above {WINNABLE_COST_MAX}, half of OpenCV's 16-bit cost limit "
-                    f"{OPENCV_COST_MAX} (fragile: costs wrap near it)")
-    return None
-
-
-@dataclass(frozen=True)
-class Selection:
-    """The winner chosen on held-out frames among the best training candidates.
-
-    ``rows``: one per candidate scored (the base first): params dict, train value,
-    held-out value (NaN without held-out frames), fragile reason. ``winner``: index
-    into rows of the best candidate other than the base that is not fragile (0 when
-    there is none); ``on``: "holdout" or "train" (the frames the choice was made on).
-    """
-
-    rows: list[dict[str, Any]]
-    winner: int
-    on: str
-
-    @property
-    def chosen(self) -> dict[str, Any]:
-        return self.rows[self.winner]
-
-    @property
-    def base(self) -> dict[str, Any]:
-        return self.rows[0]
-
-    @property
-    def beats_base(self) -> bool:
-        """The winner is not the base and scores strictly better than it on the choice's frames."""
-        key = self.on
-        return self.winner != 0 and self.chosen[f"{key}_utility"] > self.base[f"{key}_utility"]
-
-
-def top_candidates(store: RunStore, fitness_name: str, n: int = SELECT_TOP) -> list[tuple[dict[str, Any], float]]:
-    """The ``n`` best distinct (params, train value) of every stored evaluation, best first."""
-    fitness = FITNESS[fitness_name]
-    rows = [(fitness.utility(ev.value), i, params, ev.value) for i, (_, params, ev) in enumerate(store.evaluations())
-            if ev.status == OK and not params.get("invalid")]
-    rows.sort(key=lambda r: (-r[0], r[1]))
-    return [(params, value) for _, _, params, value in rows[:n]]
-
-
-def select(executor: Executor, fitness_name: str, base: StereoParams, base_train: float,
-           candidates: Sequence[tuple[dict[str, Any], float]], have_holdout: bool, *,
-           train_set: str = "train", holdout_set: str = "holdout",
-           nudge_keys: Sequence[str] | None = None,
-           screen: Callable[[dict[str, Any]], str | None] | None = None,
-           top: int = SELECT_TOP) -> Selection:
-    """Score the base and the best ``top`` of ``candidates`` (best training value first) on the held-out frames;
-    the best one that is not set aside wins.
-
-    Set aside: fragile, i.e. P1/P2 near the cost limit (:func:`fragile_reason`), or, with ``nudge_keys``, a
-    one-step nudge of one of those keys on the training frames loses the candidate's whole gain over the base
-    (``robust.nudge_check``; checked only for a candidate about to win, then the next is tried). ``screen``:
-    another check of a candidate about to win that beats the base, returning why it may not (the tuner's
-    safety sweep, ``safety.SafetyScreen.reject``) or None; a rejected one is set aside the same way.
-    Each candidate set aside is replaced by the next one of ``candidates`` (scored on the held-out frames too),
-    so the choice is always among ``top`` candidates that may win: a screen that refuses the best ones does not
-    narrow it to the rest of a fixed list, and the held-out frames never choose among more than ``top``.
-    Without held-out frames the choice falls back to the training value (reports say so).
-    Ties keep the earlier row (the base first, then the better training value).
-    """
-    from uav_depth.tuning.robust import nudge_check
-
-    fitness = FITNESS[fitness_name]
-    rows = [{"params": base.to_dict(), "train": base_train}]
-    reserve = [(params, value) for params, value in candidates if params != rows[0]["params"]]
-    on = "holdout" if have_holdout else "train"
-
-    def score(new: list[dict[str, Any]]) -> None:
-        held = run_all(executor, [Task(r["params"], holdout_set) for r in new]) if have_holdout else [None] * len(new)
-        for r, ev in zip(new, held):
-            r["holdout"] = math.nan if ev is None else (ev.value if ev.ok else fitness.worst)
-            r["fragile"] = fragile_reason(params_from_dict(r["params"]))
-            r["train_utility"] = fitness.utility(r["train"])
-            r["holdout_utility"] = fitness.utility(r["holdout"])
-
-    def fill() -> None:
-        """Score more candidates until ``top`` of them may win, or none is left."""
-        while reserve and (need := top - sum(r["fragile"] is None for r in rows[1:])) > 0:
-            new = [{"params": params, "train": value} for params, value in reserve[:need]]
-            del reserve[:need]
-            score(new)
-            rows.extend(new)
-
-    score(rows)
-    fill()
-    winner = 0
-    while True:     # the best row not set aside yet (ranked again each time: a newcomer may rank anywhere)
-        i = min((i for i in range(1, len(rows)) if rows[i]["fragile"] is None),
-                key=lambda i: (-rows[i][f"{on}_utility"], i), default=None)
-        if i is None:
-            break
-        r = rows[i]
-        beats = r[f"{on}_utility"] > rows[0][f"{on}_utility"]
-        if nudge_keys and beats:
-            check = nudge_check(executor, fitness_name, params_from_dict(r["params"]), r["train"], base_train,
-                                nudge_keys, train_set)
-            r["nudges"] = check.values
-            r["fragile"] = check.reason
-        if r["fragile"] is None and screen is not None and beats:
-            r["fragile"] = screen(r["params"])
-        if r["fragile"] is None:
-            winner = i
-            break
-        fill()
-    return Selection(rows, winner, on)
 
 
 def result_summary(result: StudyResult) -> dict[str, Any]:

@@ -48,8 +48,9 @@ from uav_depth.tuning.robust import CrossSelection, FartherCheck, cross_select, 
 from uav_depth.tuning.safety import UNSAFE, SafetyScreen
 from uav_depth.tuning.space import describe_space, parse_keys
 from uav_depth.tuning.store import RunStore, fold_study_name
-from uav_depth.tuning.study import (SELECT_POOL, Selection, Study, StudyConfig, StudyResult, choose_under_budget,
-                                    full_scores, result_summary, search_front, select, top_candidates)
+from uav_depth.tuning.choice import SELECT_POOL, Selection, full_scores, select, top_candidates
+from uav_depth.tuning.front import choose_under_budget, search_front
+from uav_depth.tuning.study import Study, StudyConfig, StudyResult, result_summary
 
 
 def study_config(optimizer: str, metric: str | None, keys: str | None, max_ms: float | None, population: int,

@@ -9,7 +9,8 @@ import pytest
 from uav_depth.core.params import DEFAULT_PARAMS
 from uav_depth.tuning import ga
 from uav_depth.tuning.optimizers import OPTIMIZERS, make_space
-from uav_depth.tuning.space import PaperSpace, SchemaSpace
+from uav_depth.tuning.paper_space import PaperSpace
+from uav_depth.tuning.space import SchemaSpace
 
 PAPER, SCHEMA = PaperSpace(), SchemaSpace()
 

@@ -13,7 +13,7 @@ from uav_depth.sim.scene import SceneConfig, write_session
 from uav_depth.tuning.objective import OK, Evaluation
 from uav_depth.tuning.robust import auto_folds, cross_select, nudges, parse_folds
 from uav_depth.tuning.store import fold_study_name, storage_url
-from uav_depth.tuning.study import select
+from uav_depth.tuning.choice import select
 
 from .conftest import TINY, TINY_BASE
 

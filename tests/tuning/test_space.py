@@ -4,11 +4,12 @@ import numpy as np
 import pytest
 
 from uav_depth.core.errors import ConfigError
-from uav_depth.core.params import (DEFAULT_PARAMS, OPENCV_COST_MAX, OPENCV_PRE_FILTER_CAP_FLOOR, SPEC_BY_KEY,
-                                     SPECS, params_from_dict)
-from uav_depth.tuning.space import (DEFAULT_KEYS, PAPER_LAYOUT, PaperSpace, SchemaSpace, build, decode_number,
-                                    WINNABLE_COST_MAX, dim_for, encode_number, parse_keys)
-from uav_depth.tuning.study import fragile_reason
+from uav_depth.core.params import (DEFAULT_PARAMS, OPENCV_3WAY_UNIQUENESS_MAX, OPENCV_COST_MAX,
+                                     OPENCV_PRE_FILTER_CAP_FLOOR, SPEC_BY_KEY, SPECS, check_computable,
+                                     params_from_dict)
+from uav_depth.tuning.paper_space import PAPER_LAYOUT, PaperSpace, decode_number, encode_number
+from uav_depth.tuning.space import DEFAULT_KEYS, SchemaSpace, WINNABLE_COST_MAX, build, dim_for, parse_keys
+from uav_depth.tuning.choice import fragile_reason
 
 
 @pytest.mark.parametrize("genes, value", [
@@ -35,21 +36,21 @@ def test_decode_number_is_a_bijection_onto_1_to_10_to_the_k(k):
 def test_paper_space_layout_is_29_genes_mapped_onto_the_schema_symbols():
     space = PaperSpace()
     assert space.size == 29
-    assert [sym for sym, _, _ in PAPER_LAYOUT] == [s.paper for s in SPECS if s.paper]
+    assert [sym for sym, *_ in PAPER_LAYOUT] == [s.paper for s in SPECS if s.paper]
     assert [g["genes"] for g in space.describe()] == ["x1..x5", "x6..x10", "x11..x12", "x13..x14", "x15..x16",
                                                       "x17..x19", "x20..x22", "x23..x27", "x28..x29"]
 
 
-def test_paper_extremes_give_the_papers_ranges_from_the_schema():
+def test_paper_symbols_read_the_genes_over_the_papers_ranges():
     space = PaperSpace()
-    lo, hi = space.decode([1] * 29), space.decode([10] * 29)
+    lo, hi = space.decode_symbols([1] * 29), space.decode_symbols([10] * 29)
     for spec in SPECS:
         if not spec.paper or ".." not in spec.paper_range or "<" in spec.paper_range:
             continue
         a, b = (float(x) for x in spec.paper_range.split(".."))
-        assert (lo[spec.key], hi[spec.key]) == (a, b), spec.key
+        assert (lo[spec.paper], hi[spec.paper]) == (a, b), spec.key
     # beta = alpha + number(x6..x10): alpha < beta <= 200000
-    assert lo["sgbm.p2"] == 2 and hi["sgbm.p2"] == 200000
+    assert lo["beta"] == 2 and hi["beta"] == 200000
 
 
 def test_paper_sigma_uses_two_genes_in_hundredths():
@@ -60,21 +61,38 @@ def test_paper_sigma_uses_two_genes_in_hundredths():
     assert PaperSpace().decode(g)["wls.sigma_color"] == 0.03
 
 
-def test_paper_random_genomes_stay_in_range_and_beta_above_alpha():
+FLIGHT_LIKE = DEFAULT_PARAMS.replace(**{"sgbm.mode": "sgbm_3way", "sgbm.block_size": 3, "sgbm.num_disparities": 80})
+
+
+@pytest.mark.parametrize("base", [DEFAULT_PARAMS, FLIGHT_LIKE], ids=["manual", "3way"])
+def test_no_paper_genome_builds_a_candidate_the_daemon_would_refuse(base):
+    """Every genome decodes into a file the daemon flies (check_computable) and may win (no P1/P2 above the
+    winnable bound): no trial fails for a reason the schema knows. On real pairs the paper's ranges failed 30 of
+    48 trials (P1/P2 above OpenCV's 16-bit limit)."""
     space, rng = PaperSpace(), np.random.default_rng(0)
-    for _ in range(300):
-        genome = space.sample(rng)
-        assert genome.min() >= 1 and genome.max() <= 10
-        d = space.decode(genome)
-        assert d["sgbm.p1"] < d["sgbm.p2"] <= 200000
-        assert 0.0 <= d["wls.sigma_color"] <= 0.99
+    genomes = [space.sample(rng) for _ in range(500)] + [np.full(29, 1), np.full(29, 10)]
+    for genome in genomes:
+        p = build(space, genome, base)          # raises if the schema refuses it
+        check_computable(p)
+        assert p.sgbm.p1 < p.sgbm.p2 <= WINNABLE_COST_MAX and fragile_reason(p) is None
+        assert p.wls.sigma_color > 0
+        if base.sgbm.mode == "sgbm_3way":
+            assert p.sgbm.uniqueness_ratio <= OPENCV_3WAY_UNIQUENESS_MAX
 
 
-def test_paper_sigma_zero_is_rejected_by_the_schema_not_repaired():
-    genome = PaperSpace().encode(DEFAULT_PARAMS.replace(**{"wls.sigma_color": 0.5}))
-    genome[27:29] = 1
-    with pytest.raises(ConfigError, match="wls.sigma_color must be greater than 0, but got 0.0"):
-        build(PaperSpace(), genome, DEFAULT_PARAMS)
+def test_paper_penalties_keep_their_place_in_the_papers_range():
+    """alpha and beta - alpha are placed, not clipped: the smallest genes give the smallest penalties, the
+    largest the largest winnable ones, and the middle of the paper's range the middle of the accepted one."""
+    space = PaperSpace()
+    lo, hi = space.decode([1] * 29, DEFAULT_PARAMS), space.decode([10] * 29, DEFAULT_PARAMS)
+    assert (lo["sgbm.p1"], lo["sgbm.p2"]) == (1, 2)
+    assert (hi["sgbm.p1"], hi["sgbm.p2"]) == (WINNABLE_COST_MAX - 1, WINNABLE_COST_MAX)
+    mid = [6, 1, 1, 1, 1] + [1] * 24              # alpha 50001: half way
+    assert abs(space.decode(mid, DEFAULT_PARAMS)["sgbm.p1"] - WINNABLE_COST_MAX / 2) <= 1
+    # every other symbol keeps the paper's own value where the daemon accepts it
+    assert lo["sgbm.uniqueness_ratio"] == 1 and hi["sgbm.uniqueness_ratio"] == 100
+    assert space.decode([10] * 29, FLIGHT_LIKE)["sgbm.uniqueness_ratio"] == OPENCV_3WAY_UNIQUENESS_MAX
+    assert hi["wls.lambda"] == 100000 and lo["wls.sigma_color"] == 0.01      # sigma 0 is one step up
 
 
 def test_paper_encode_round_trip_and_untuned_keys_keep_the_base():
@@ -120,6 +138,16 @@ def test_schema_space_log_scale_spends_equal_effort_per_decade():
     values = [dim.decode(u) for u in np.linspace(0, 1, 1001)]
     below_100 = np.mean(np.array(values) < 100)
     assert 0.35 < below_100 < 0.55   # log10(100) / log10(32766) = 0.44; linear would give 0.003
+
+
+def test_schema_space_uniqueness_respects_the_3way_cap_of_the_base_or_the_tuned_mode():
+    for keys, base in ((("sgbm.uniqueness_ratio",), FLIGHT_LIKE), (("sgbm.uniqueness_ratio", "sgbm.mode"), DEFAULT_PARAMS)):
+        space = SchemaSpace(keys)
+        assert space.keys[0] == keys[-1]          # the mode (when tuned) is decoded first
+        for u in np.linspace(0, 1, 41):
+            genome = [u] * space.size
+            p = build(space, genome, base)
+            assert p.sgbm.mode != "sgbm_3way" or p.sgbm.uniqueness_ratio <= OPENCV_3WAY_UNIQUENESS_MAX
 
 
 def test_schema_space_p2_alone_stays_above_the_bases_p1():

@@ -10,9 +10,9 @@ from uav_depth.core.params import DEFAULT_PARAMS
 from uav_depth.tuning.executor import ProcessExecutor, SerialExecutor, make_executor, run_all
 from uav_depth.tuning.frames import FrameData, FrameSet
 from uav_depth.tuning.objective import FITNESS, Task, evaluate
-from uav_depth.tuning.space import PaperSpace
 from uav_depth.tuning.store import RunStore
-from uav_depth.tuning.study import Study, StudyConfig, candidate_key, pareto_front
+from uav_depth.tuning.front import pareto_front
+from uav_depth.tuning.study import Study, StudyConfig, candidate_key
 
 from .conftest import TINY_BASE
 
@@ -65,25 +65,32 @@ def test_best_so_far_never_worsens_and_beats_or_equals_the_base(tiny_frames):
     assert h[-1] <= result.baseline.value    # the improved GA starts from the base (mse: lower is better)
 
 
-def test_failed_candidates_are_recorded_with_reason_and_the_run_finishes(tiny_frames):
-    # the paper's ranges make most random candidates overflow OpenCV's 16-bit costs
+def test_the_papers_ga_spends_no_trial_on_a_value_the_schema_refuses(tiny_frames):
+    """The paper's ranges put most genomes above OpenCV's 16-bit cost limit; decoded into what the daemon
+    accepts (paper_space), none of them is a failed trial for a reason the schema could have known."""
     result, store = _run(tiny_frames, 1, optimizer="ga-paper", population=10, generations=3)
-    rows = list(store.evaluations())
-    failed = [ev for _, _, ev in rows if ev.status == "failed"]
-    assert failed and all(ev.reason for ev in failed)
-    assert all(ev.value == math.inf for ev in failed)      # worst mse
-    assert any("16-bit cost limit" in ev.reason for ev in failed)
-    assert len(result.runs[0].history) == 3 and result.runs[0].failed > 0
+    reasons = [ev.reason for _, _, ev in store.evaluations() if ev.status == "failed"]
+    assert not any("must be" in r or "16-bit" in r for r in reasons), reasons
+    assert len(result.runs[0].history) == 3 and result.runs[0].proposals == 30
+
+
+class _RefusedSpace:
+    """A space whose every genome stands for a value the schema refuses (a seam for the failed-trial path)."""
+
+    name, size = "refused", 1
+
+    def decode(self, genome, base=None):
+        return {"wls.sigma_color": 0.0}
 
 
 def test_a_candidate_the_schema_rejects_is_a_failed_trial(tiny_frames):
     config = StudyConfig(optimizer="ga-paper", population=2, generations=1)
     with SerialExecutor({"train": tiny_frames}, "mse") as ex:
         study = Study(config, tiny_frames, ex, RunStore(), DEFAULT_PARAMS)
-        genome = PaperSpace().encode(DEFAULT_PARAMS.replace(**{"wls.sigma_color": 0.5}))
-        genome[27:29] = 1                                   # sigma 0
-        key, params, ev = study.candidate(genome)
+        study.space = _RefusedSpace()
+        key, params, ev = study.candidate([0.5])
         assert ev.status == "failed" and "wls.sigma_color must be greater than 0" in ev.reason
+        assert ev.value == math.inf                          # the worst mse
         assert study.evaluate([(key, params, ev)])[0] is ev
         assert study.store.get(key).reason == ev.reason
 

@@ -10,7 +10,8 @@ from uav_depth.core.params import DEFAULT_PARAMS
 from uav_depth.sim.scene import SceneConfig, write_session
 from uav_depth.tuning.frames import FrameSet
 from uav_depth.tuning.robust import CrossSelection
-from uav_depth.tuning.study import Selection, TuneInterrupted
+from uav_depth.tuning.choice import Selection
+from uav_depth.tuning.study import TuneInterrupted
 from uav_depth.tuning.tune import Hooks, TuneRequest, farther_sets, set_names, study_config, tune
 
 from .conftest import TINY, TINY_BASE, _tiny_frames
