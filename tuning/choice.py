@@ -32,7 +32,7 @@ def full_scores(executor: Executor, params: Sequence[StereoParams], framesets: S
     return dict(zip(index, run_all(executor, tasks)))
 
 
-#: How many of the best training candidates the held-out choice is among (study.select): the best SELECT_TOP
+#: How many of the best training candidates the choice is among (:func:`select`): the best SELECT_TOP
 #: that may win; each one set aside (fragile, or refused by the safety sweep) is replaced by the next best.
 SELECT_TOP = 6
 #: How deep in the training ranking those replacements may go (tune passes this many to study.select).
@@ -51,12 +51,12 @@ def fragile_reason(params: StereoParams) -> str | None:
 
 @dataclass(frozen=True)
 class Selection:
-    """The winner chosen on held-out frames among the best training candidates.
+    """The winner chosen on the validation frames among the best training candidates.
 
     ``rows``: one per candidate scored (the base first): params dict, train value,
-    held-out value (NaN without held-out frames), fragile reason. ``winner``: index
+    validation value (NaN without validation frames), fragile reason. ``winner``: index
     into rows of the best candidate other than the base that is not fragile (0 when
-    there is none); ``on``: "holdout" or "train" (the frames the choice was made on).
+    there is none); ``on``: "validation" or "train" (the frames the choice was made on).
     """
 
     rows: list[dict[str, Any]]
@@ -88,12 +88,12 @@ def top_candidates(store: RunStore, fitness_name: str, n: int = SELECT_TOP) -> l
 
 
 def select(executor: Executor, fitness_name: str, base: StereoParams, base_train: float,
-           candidates: Sequence[tuple[dict[str, Any], float]], have_holdout: bool, *,
-           train_set: str = "train", holdout_set: str = "holdout",
+           candidates: Sequence[tuple[dict[str, Any], float]], have_validation: bool, *,
+           train_set: str = "train", validation_set: str = "validation",
            nudge_keys: Sequence[str] | None = None,
            screen: Callable[[dict[str, Any]], str | None] | None = None,
            top: int = SELECT_TOP) -> Selection:
-    """Score the base and the best ``top`` of ``candidates`` (best training value first) on the held-out frames;
+    """Score the base and the best ``top`` of ``candidates`` (best training value first) on the validation frames;
     the best one that is not set aside wins.
 
     Set aside: fragile, i.e. P1/P2 near the cost limit (:func:`fragile_reason`), or, with ``nudge_keys``, a
@@ -101,24 +101,25 @@ def select(executor: Executor, fitness_name: str, base: StereoParams, base_train
     (``robust.nudge_check``; checked only for a candidate about to win, then the next is tried). ``screen``:
     another check of a candidate about to win that beats the base, returning why it may not (the tuner's
     safety sweep, ``safety.SafetyScreen.reject``) or None; a rejected one is set aside the same way.
-    Each candidate set aside is replaced by the next one of ``candidates`` (scored on the held-out frames too),
+    Each candidate set aside is replaced by the next one of ``candidates`` (scored on the validation frames too),
     so the choice is always among ``top`` candidates that may win: a screen that refuses the best ones does not
-    narrow it to the rest of a fixed list, and the held-out frames never choose among more than ``top``.
-    Without held-out frames the choice falls back to the training value (reports say so).
+    narrow it to the rest of a fixed list, and the validation frames never choose among more than ``top``.
+    Without validation frames the choice falls back to the training value (reports say so).
     Ties keep the earlier row (the base first, then the better training value).
     """
     fitness = FITNESS[fitness_name]
     rows = [{"params": base.to_dict(), "train": base_train}]
     reserve = [(params, value) for params, value in candidates if params != rows[0]["params"]]
-    on = "holdout" if have_holdout else "train"
+    on = "validation" if have_validation else "train"
 
     def score(new: list[dict[str, Any]]) -> None:
-        held = run_all(executor, [Task(r["params"], holdout_set) for r in new]) if have_holdout else [None] * len(new)
+        held = (run_all(executor, [Task(r["params"], validation_set) for r in new]) if have_validation
+                else [None] * len(new))
         for r, ev in zip(new, held):
-            r["holdout"] = math.nan if ev is None else (ev.value if ev.ok else fitness.worst)
+            r["validation"] = math.nan if ev is None else (ev.value if ev.ok else fitness.worst)
             r["fragile"] = fragile_reason(params_from_dict(r["params"]))
             r["train_utility"] = fitness.utility(r["train"])
-            r["holdout_utility"] = fitness.utility(r["holdout"])
+            r["validation_utility"] = fitness.utility(r["validation"])
 
     def fill() -> None:
         """Score more candidates until ``top`` of them may win, or none is left."""

@@ -19,14 +19,16 @@ from __future__ import annotations
 import os
 import signal
 import threading
+import time
 from collections import deque
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from typing import Iterator, Mapping, Protocol, Sequence
+from typing import Callable, Iterator, Mapping, Protocol, Sequence
 
 from uav_depth.core.errors import ConfigError, DependencyError
+from uav_depth.daemon.ranging import RangingConfig
 
 from uav_depth.tuning.frames import FrameSet
-from uav_depth.tuning.objective import Evaluation, Objective, Task
+from uav_depth.tuning.objective import FLOWN_RANGING, Evaluation, Objective, Task
 
 #: OpenCV threads per evaluating process (see the module docstring).
 EVAL_THREADS = 1
@@ -65,9 +67,9 @@ class SerialExecutor:
 
     kind = "serial"
 
-    def __init__(self, framesets: Mapping[str, FrameSet], fitness: str):
+    def __init__(self, framesets: Mapping[str, FrameSet], fitness: str, ranging: RangingConfig = FLOWN_RANGING):
         self.workers = 1
-        self.objective = Objective(framesets, fitness)
+        self.objective = Objective(framesets, fitness, ranging)
         self._threads_before = _set_cv_threads(EVAL_THREADS)
 
     def imap(self, tasks, stop=None):
@@ -89,14 +91,14 @@ class SerialExecutor:
 _WORKER_OBJECTIVE: Objective | None = None
 
 
-def _init_worker(framesets: Mapping[str, FrameSet], fitness: str) -> None:
+def _init_worker(framesets: Mapping[str, FrameSet], fitness: str, ranging: RangingConfig) -> None:
     """Pool initializer: the frames arrive here, once per worker process."""
     global _WORKER_OBJECTIVE
     # Ctrl-C in a terminal reaches the whole process group; the parent decides
     # what stops, a worker finishes its candidate so the result is kept.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _set_cv_threads(EVAL_THREADS)
-    _WORKER_OBJECTIVE = Objective(framesets, fitness)
+    _WORKER_OBJECTIVE = Objective(framesets, fitness, ranging)
 
 
 def _run_task(task: Task) -> Evaluation:
@@ -104,19 +106,28 @@ def _run_task(task: Task) -> Evaluation:
     return _WORKER_OBJECTIVE(task)
 
 
+def _ready(pause_s: float) -> int:
+    """A worker's process id once it is initialised (the pause spreads the calls over the workers)."""
+    import time
+
+    time.sleep(pause_s)
+    return os.getpid()
+
+
 class ProcessExecutor:
     """A local pool of ``workers`` processes (spawned: no fork of a threaded parent)."""
 
     kind = "process"
 
-    def __init__(self, framesets: Mapping[str, FrameSet], fitness: str, workers: int):
+    def __init__(self, framesets: Mapping[str, FrameSet], fitness: str, workers: int,
+                 ranging: RangingConfig = FLOWN_RANGING):
         import multiprocessing
 
         if workers < 1:
             raise ConfigError("--workers", "must be at least 1", workers)
         self.workers = workers
         self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                        initializer=_init_worker, initargs=(dict(framesets), fitness))
+                                        initializer=_init_worker, initargs=(dict(framesets), fitness, ranging))
 
     def imap(self, tasks, stop=None):
         if stop is not None and stop.is_set():
@@ -133,6 +144,18 @@ class ProcessExecutor:
                     f.cancel()
                 pending = {f for f in pending if not f.cancelled()}
 
+    def warm(self, ready: Callable[[int, int], None] = lambda done, total: None, timeout_s: float = 120.0) -> None:
+        """Start every worker now (each loads the frames once) and call ``ready(started, workers)`` as each
+        is: the first evaluation then does not wait for a process to start, with nothing on the terminal."""
+        seen: set[int] = set()
+        deadline = time.monotonic() + timeout_s
+        while len(seen) < self.workers and time.monotonic() < deadline:
+            for f in [self.pool.submit(_ready, 0.05) for _ in range(self.workers)]:
+                pid = f.result()
+                if pid not in seen:
+                    seen.add(pid)
+                    ready(len(seen), self.workers)
+
     def close(self) -> None:
         self.pool.shutdown(wait=True, cancel_futures=True)
 
@@ -147,9 +170,9 @@ class _RayWorker:
     """A Ray actor holding the frames (from the object store, once) and the fitness."""
 
     def __init__(self, payload):
-        framesets, fitness = payload
+        framesets, fitness, ranging = payload
         _set_cv_threads(EVAL_THREADS)
-        self.objective = Objective(framesets, fitness)
+        self.objective = Objective(framesets, fitness, ranging)
 
     def evaluate(self, task: Task) -> Evaluation:
         return self.objective(task)
@@ -166,7 +189,7 @@ class RayExecutor:
     kind = "ray"
 
     def __init__(self, framesets: Mapping[str, FrameSet], fitness: str, workers: int | None,
-                 address: str | None = None):
+                 address: str | None = None, ranging: RangingConfig = FLOWN_RANGING):
         try:
             import ray
         except ImportError as exc:
@@ -179,7 +202,7 @@ class RayExecutor:
                      include_dashboard=False, log_to_driver=False, configure_logging=False)
         n = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
         self.workers = n
-        payload = ray.put((dict(framesets), fitness))
+        payload = ray.put((dict(framesets), fitness, ranging))
         actor = ray.remote(num_cpus=1)(_RayWorker)
         self.actors = [actor.remote(payload) for _ in range(n)]
 
@@ -217,14 +240,15 @@ class RayExecutor:
 
 
 def make_executor(framesets: Mapping[str, FrameSet], fitness: str, workers: int | None = None,
-                  ray_address: str | None = None) -> Executor:
-    """Serial for one worker, a process pool for more, Ray when ``ray_address`` is given.
+                  ray_address: str | None = None, ranging: RangingConfig = FLOWN_RANGING) -> Executor:
+    """Serial for one worker, a process pool for more, Ray when ``ray_address`` is given; every evaluation
+    ranges with ``ranging`` (the ``ranging:`` section of the config that will fly).
 
     ``workers`` None: all cores of this machine (all CPUs of the Ray cluster).
     """
     if ray_address:
-        return RayExecutor(framesets, fitness, workers, ray_address)
+        return RayExecutor(framesets, fitness, workers, ray_address, ranging)
     n = workers if workers is not None else (os.cpu_count() or 1)
     if n < 1:
         raise ConfigError("--workers", "must be at least 1", n)
-    return SerialExecutor(framesets, fitness) if n == 1 else ProcessExecutor(framesets, fitness, n)
+    return SerialExecutor(framesets, fitness, ranging) if n == 1 else ProcessExecutor(framesets, fitness, n, ranging)

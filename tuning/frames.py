@@ -1,4 +1,4 @@
-"""The frames a tuning run scores candidates on, loaded once and split into train / held-out.
+"""The frames a tuning run scores candidates on, loaded once (:mod:`.split` says which frames play which role).
 
 A :class:`FrameSet` is plain arrays (picklable), so an executor ships it to each
 worker once, at start-up, and never per evaluation. Its :meth:`FrameSet.digest`
@@ -9,15 +9,13 @@ from __future__ import annotations
 
 import hashlib
 import math
-import os
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Iterable
 
 import numpy as np
 
-from uav_depth.core.errors import ConfigError, FileFormatError
-from uav_depth.core.session import FrameRecord, find_sessions, iter_frames
+from uav_depth.core.errors import FileFormatError
+from uav_depth.core.session import FrameRecord, Session
 
 from uav_depth.tuning.reference.provenance import describe_source, read_provenance
 
@@ -121,115 +119,18 @@ def load_frame(record: FrameRecord) -> FrameData:
                      focal, baseline, source)
 
 
-#: Share of a single session's frames "auto" holds out.
-AUTO_FRACTION = 0.3
+class DiskFrames:
+    """Frames of a log read from disk each time they are asked for (``frames``), never kept: what a worker
+    needs for a frame set too large to hold (the safety sweep at a large rig) ships as paths. ``records``:
+    (session directory, frame id) in order."""
 
+    def __init__(self, name: str, records: Iterable[tuple[str, str]]):
+        self.name = name
+        self.records = tuple(records)
 
-def _is_dir(text: str) -> bool:
-    """Whether ``text`` names a directory; False for text no path can be (a list of names longer than the
-    system's name limit raises OSError from stat, which is not a directory either)."""
-    try:
-        return Path(text).is_dir()
-    except (OSError, ValueError):
-        return False
+    def __len__(self) -> int:
+        return len(self.records)
 
-
-def split_records(logdir: str | os.PathLike[str], holdout: str | None) -> tuple[list[FrameRecord], list[FrameRecord]]:
-    """Train and held-out frame records of ``logdir`` by the ``--holdout`` rule.
-
-    ``holdout`` is one of: empty/None/"none" (no held-out frames); "auto" (by session:
-    the last third of the sessions, at least one, when there are two or more; else the
-    last 30 % of the frames when there are two or more; else none); a directory (a session
-    or a directory of sessions, all held out; the train frames are ``logdir``'s);
-    a fraction 0 < f < 1 (the last ceil(f * n) frames of each session, at least one
-    frame stays for training); or a comma list of session names, ``session/frame``
-    keys or frame ids.
-    """
-    records = list(iter_frames(logdir))
-    if not records:
-        raise FileFormatError(f"{logdir}: no frames found")
-    if not holdout or holdout == "none":
-        return records, []
-    if holdout == "auto":
-        sessions = find_sessions(logdir)
-        if len(sessions) >= 2:
-            held_names = {s.path.resolve() for s in sessions[len(sessions) - math.ceil(len(sessions) / 3):]}
-            held = [r for r in records if r.session.path.resolve() in held_names]
-            return [r for r in records if r not in held], held
-        if len(records) < 2:
-            return records, []
-        holdout = str(AUTO_FRACTION)
-    if _is_dir(holdout):
-        path = Path(holdout)
-        held = list(iter_frames(path))
-        held_keys = {(r.session.path.resolve(), r.frame_id) for r in held}
-        train = [r for r in records if (r.session.path.resolve(), r.frame_id) not in held_keys]
-        return train, held
-    try:
-        fraction = float(holdout)
-    except ValueError:
-        fraction = None
-    if fraction is not None:
-        if not 0 < fraction < 1:
-            raise ConfigError("--holdout", "must be a fraction between 0 and 1, a directory or a list of names",
-                              holdout)
-        train, held = [], []
-        for session in find_sessions(logdir):
-            frames = session.frames()
-            k = min(math.ceil(fraction * len(frames)), len(frames) - 1)
-            train += frames[:len(frames) - k]
-            held += frames[len(frames) - k:]
-        return train, held
-    names = {n.strip() for n in holdout.split(",") if n.strip()}
-    matched: set[str] = set()
-    held = []
-    for r in records:
-        hit = {r.session.path.name, r.key, r.frame_id} & names
-        if hit:
-            held.append(r)
-            matched |= hit
-    unknown = names - matched
-    if unknown:
-        raise ConfigError("--holdout", "must name sessions, session/frame keys or frame ids of the log",
-                          ", ".join(sorted(unknown)))
-    return [r for r in records if r not in held], held
-
-
-def load_split(logdir: str | os.PathLike[str], holdout: str | None, needs: Iterable[str]) -> tuple[FrameSet, FrameSet]:
-    """Load train and held-out frames that have what the fitness ``needs`` (reference, branch)."""
-    needs = tuple(needs)
-    train_r, held_r = split_records(logdir, holdout)
-    train = FrameSet("train", tuple(load_frame(r) for r in train_r)).filter(needs)
-    held = FrameSet("holdout", tuple(load_frame(r) for r in held_r)).filter(needs)
-    if not len(train):
-        what = " and ".join(needs) or "frames"
-        hint = ""
-        if "reference" in needs:
-            hint = ("; give the frames a reference disparity (uav-depth reference import LOGDIR --from DIR, or "
-                    "uav-depth reference onnx), or tune without one: --metric selfsup")
-        elif "branch" in needs:
-            hint = "; the branch metric needs each frame's branch_distance_m (synthetic sessions carry it)"
-        raise FileFormatError(f"{logdir}: no training frame with {what} (after --holdout){hint}")
-    return train, held
-
-
-def load_folds(logdir: str | os.PathLike[str], k: int, needs: Iterable[str]) -> list[tuple[FrameSet, FrameSet]]:
-    """k (train, held-out) splits by session: fold j holds out the sessions j, j+k, j+2k ... (name order).
-
-    Each frame is loaded once and shared by the folds. Every fold must keep a training frame with what the
-    fitness ``needs``."""
-    needs = tuple(needs)
-    sessions = find_sessions(logdir)
-    if k < 2 or len(sessions) < k:
-        raise ConfigError("--folds", f"needs at least as many sessions as folds ({len(sessions)} sessions)", k)
-    per_session = [[load_frame(r) for r in s.frames()] for s in sessions]
-    folds = []
-    for j in range(k):
-        train = [f for i, fs in enumerate(per_session) if i % k != j for f in fs]
-        held = [f for i, fs in enumerate(per_session) if i % k == j for f in fs]
-        train_set = FrameSet("train", tuple(train)).filter(needs)
-        if not len(train_set):
-            raise FileFormatError(f"{logdir}: fold {j + 1} of {k} has no training frame with "
-                                  f"{' and '.join(needs) or 'frames'}")
-        folds.append((train_set, FrameSet("holdout", tuple(held)).filter(needs)))
-    return folds
+    @property
+    def frames(self) -> tuple[FrameData, ...]:
+        return tuple(load_frame(FrameRecord(Session(path), frame_id)) for path, frame_id in self.records)

@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Mapping
 
 import numpy as np
@@ -46,7 +46,8 @@ OK, FAILED = "ok", "failed"
 
 @dataclass(frozen=True)
 class Fitness:
-    """One fitness metric: per-frame score of a pipeline result.
+    """One fitness metric: per-frame score of a pipeline result, ranged (where it ranges) with the
+    ``ranging:`` settings of the config that will fly.
 
     ``direction``: +1 larger is better, -1 smaller is better. ``needs``: what a
     frame must have to be scored ("reference", "branch").
@@ -55,7 +56,7 @@ class Fitness:
     name: str
     direction: int
     needs: tuple[str, ...]
-    score: Callable[[FrameData, DisparityResult, StereoParams], float]
+    score: Callable[[FrameData, DisparityResult, StereoParams, RangingConfig], float]
     doc: str
 
     @property
@@ -72,7 +73,8 @@ def scored_box(params: StereoParams, shape: tuple[int, ...]) -> metrics.Box:
     return params.compute.roi_pixels(shape[1], shape[0])
 
 
-#: The ranging settings the flown fitness assumes (the daemon's defaults: min_confidence 0.5 ...).
+#: The ranging settings of a daemon run without a config's ``ranging:`` section (min_confidence 0.5 ...): what
+#: the flown fitness ranges with unless the tune is given the config that will fly (``tune --config``).
 FLOWN_RANGING = RangingConfig()
 #: Weight of the branch-distance error in the flown fitness: 10 % of branch error costs as much as 1 px
 #: of mean disparity error (a 1 px error is about 10 % of distance at 10 px of disparity).
@@ -105,7 +107,7 @@ def bench(frame: FrameData, estimate: np.ndarray, box: metrics.Box) -> dict[str,
     return metrics.bench_scores(ref, est, peak, strip - box[0])
 
 
-def _flown(metric: str) -> Callable[[FrameData, DisparityResult, StereoParams], float]:
+def _flown(metric: str) -> Callable[[FrameData, DisparityResult, StereoParams, RangingConfig], float]:
     """The flown fitness with ``metric`` for the map: scored over the candidate's matched region, the branch in
     the ranging region.
 
@@ -114,38 +116,44 @@ def _flown(metric: str) -> Callable[[FrameData, DisparityResult, StereoParams], 
     region by 33-37 % and the held-out error in it by only 7-15 %; scored over the matched region, it cut the
     held-out error in the ranging region by 14-22 %. The parameters act on the whole frame; a ninth of it
     over a few frames is too few pixels to choose them by."""
-    def score(frame: FrameData, res: DisparityResult, params: StereoParams) -> float:
-        value = bench(frame, flown_map(res), scored_box(params, frame.left.shape))[metric]
-        if frame.has_branch:
-            value += BRANCH_PX_PER_PCT * _branch(frame, res, params)   # safety-weighted: farther costs more
+    def score(frame: FrameData, res: DisparityResult, params: StereoParams, ranging: RangingConfig) -> float:
+        value = bench(frame, flown_map(res, ranging.min_confidence), scored_box(params, frame.left.shape))[metric]
+        if frame.has_branch:   # safety-weighted: farther costs more
+            value += BRANCH_PX_PER_PCT * _branch(frame, res, params, ranging)
         return value
     return score
 
 
-def _ref(fn: Callable[[np.ndarray, np.ndarray], float]) -> Callable[[FrameData, DisparityResult, StereoParams], float]:
-    return lambda frame, res, params: fn(*metrics.in_box(scored_box(params, frame.reference.shape),
-                                                         frame.reference, res.disparity))
+def _ref(fn: Callable[[np.ndarray, np.ndarray], float]
+         ) -> Callable[[FrameData, DisparityResult, StereoParams, RangingConfig], float]:
+    return lambda frame, res, params, ranging: fn(*metrics.in_box(scored_box(params, frame.reference.shape),
+                                                                  frame.reference, res.disparity))
 
 
-def frame_ranger(frame: FrameData, params: StereoParams) -> Ranger:
-    """The daemon's own ranging stage for ``params`` at ``frame``'s rig and region (its limits: ``.limits``)."""
+def frame_ranger(frame: FrameData, params: StereoParams, ranging: RangingConfig = FLOWN_RANGING) -> Ranger:
+    """The daemon's own ranging stage for ``params`` at ``frame``'s rig, with ``ranging``'s settings, in the
+    frame's region (where its truth was measured; the config's ``ranging.roi`` when the frame has none).
+    Its limits: ``.limits``."""
     h, w = frame.left.shape[:2]
     cal = Calibration(focal_px=frame.focal_px, baseline_m=frame.baseline_m, width=w, height=h)
-    roi = resolve_roi(frame.roi, w, h)
-    return Ranger(RangingConfig(roi=roi), cal, roi, params)
+    roi = resolve_roi(frame.roi if frame.roi is not None else ranging.roi, w, h)
+    return Ranger(replace(ranging, roi=roi), cal, roi, params)
 
 
-def branch_reading(frame: FrameData, res: DisparityResult, params: StereoParams) -> Measurement:
+def branch_reading(frame: FrameData, res: DisparityResult, params: StereoParams,
+                   ranging: RangingConfig = FLOWN_RANGING) -> Measurement:
     """The daemon's own ranging stage on this result: its whole reading (the distance, or why there is none)."""
-    return frame_ranger(frame, params).measure(res)
+    return frame_ranger(frame, params, ranging).measure(res)
 
 
-def branch_distance(frame: FrameData, res: DisparityResult, params: StereoParams) -> float | None:
+def branch_distance(frame: FrameData, res: DisparityResult, params: StereoParams,
+                    ranging: RangingConfig = FLOWN_RANGING) -> float | None:
     """The daemon's own ranging stage on this result: the branch distance in m, None when it measured nothing."""
-    return branch_reading(frame, res, params).distance_m
+    return branch_reading(frame, res, params, ranging).distance_m
 
 
-def branch_distances(params: StereoParams, frames: FrameSet) -> list[float | None]:
+def branch_distances(params: StereoParams, frames: FrameSet,
+                     ranging: RangingConfig = FLOWN_RANGING) -> list[float | None]:
     """The daemon's distance on each frame as it flies (core.disparity.flight_pipeline, then its ranging stage),
     None where it measured nothing: unlike :func:`evaluate`, a frame the matcher answers nowhere (a branch filling
     the view) is a frame without a measurement, not a failed candidate. Raises what the pipeline raises."""
@@ -155,23 +163,25 @@ def branch_distances(params: StereoParams, frames: FrameSet) -> list[float | Non
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ParameterWarning)
             res = pipeline.run(frame.left, frame.right)
-        out.append(None if res.warning is not None else branch_distance(frame, res, params))
+        out.append(None if res.warning is not None else branch_distance(frame, res, params, ranging))
     return out
 
 
-def branch_measurement(frame: FrameData, res: DisparityResult, params: StereoParams) -> tuple[float | None, float]:
+def branch_measurement(frame: FrameData, res: DisparityResult, params: StereoParams,
+                       ranging: RangingConfig = FLOWN_RANGING) -> tuple[float | None, float]:
     """(distance m or None, plain symmetric error % against the frame's truth: metrics.branch_error)."""
-    distance = branch_distance(frame, res, params)
+    distance = branch_distance(frame, res, params, ranging)
     return distance, metrics.branch_error(distance, frame.branch_distance_m)
 
 
-def _branch(frame: FrameData, res: DisparityResult, params: StereoParams) -> float:
+def _branch(frame: FrameData, res: DisparityResult, params: StereoParams,
+            ranging: RangingConfig = FLOWN_RANGING) -> float:
     """The daemon's own ranging stage on this result, against the frame's truth, safety-weighted
     (metrics.safe_branch_error: a reading farther than the truth by more than 2 % costs more than a miss)."""
-    return metrics.safe_branch_error(branch_distance(frame, res, params), frame.branch_distance_m)
+    return metrics.safe_branch_error(branch_distance(frame, res, params, ranging), frame.branch_distance_m)
 
 
-def _selfsup(frame: FrameData, res: DisparityResult, params: StereoParams) -> float:
+def _selfsup(frame: FrameData, res: DisparityResult, params: StereoParams, ranging: RangingConfig) -> float:
     # Implemented by the reference-disparity work (issue 7); imported lazily so the
     # tuner runs without it for every other metric.
     from uav_depth.tuning.selfsup import selfsup_loss
@@ -234,8 +244,8 @@ FLOWN_FITNESS = ("flown", "flown-bad2", "branch")
 
 
 def _frame_metrics(frame: FrameData, res: DisparityResult, params: StereoParams,
-                   convention: str = "bench", score_roi: tuple[float, float, float, float] | None = None
-                   ) -> dict[str, float]:
+                   convention: str = "bench", score_roi: tuple[float, float, float, float] | None = None,
+                   ranging: RangingConfig = FLOWN_RANGING) -> dict[str, float]:
     """Every metric the frame allows (reports), in ``convention`` (metrics.CONVENTIONS).
 
     bench: the flown map (:func:`flown_map`) inside the scored box; paper: the WLS map, as the paper scores it.
@@ -250,11 +260,11 @@ def _frame_metrics(frame: FrameData, res: DisparityResult, params: StereoParams,
         box_params = params if score_roi is None else params.replace(**{"compute.roi": tuple(score_roi)})
         box = scored_box(box_params, frame.reference.shape)
         if convention == "bench":
-            out.update(bench(frame, flown_map(res), box))
+            out.update(bench(frame, flown_map(res, ranging.min_confidence), box))
         else:
             out.update(metrics.score(*metrics.in_box(box, frame.reference, res.disparity)).as_dict())
     if frame.has_branch:
-        distance = branch_distance(frame, res, params)
+        distance = branch_distance(frame, res, params, ranging)
         truth = frame.branch_distance_m
         out.update(branch=metrics.branch_error(distance, truth), branch_safe=metrics.safe_branch_error(distance, truth),
                    farther=float(metrics.is_farther(distance, truth)), truth_m=float(truth),
@@ -268,9 +278,9 @@ def default_convention(fitness: str) -> str:
 
 
 def evaluate(params: StereoParams, frames: FrameSet, fitness: Fitness, full: bool = False,
-             convention: str | None = None, score_roi: tuple[float, float, float, float] | None = None
-             ) -> Evaluation:
-    """Score ``params`` on ``frames``; never raises for a bad candidate (returns FAILED).
+             convention: str | None = None, score_roi: tuple[float, float, float, float] | None = None,
+             ranging: RangingConfig = FLOWN_RANGING) -> Evaluation:
+    """Score ``params`` on ``frames``, ranged with ``ranging``; never raises for a bad candidate (returns FAILED).
 
     ``full``: every metric the frames allow, per frame (reports); otherwise the
     fitness alone (the search loop: the pipeline is nearly all of the cost, but
@@ -294,12 +304,12 @@ def evaluate(params: StereoParams, frames: FrameSet, fitness: Fitness, full: boo
                 return failed(fitness, f"{frame.key}: {res.warning}", time.perf_counter() - t_start)
             if not np.isfinite(res.disparity).any():
                 return failed(fitness, f"{frame.key}: no valid pixel", time.perf_counter() - t_start)
-            value = float(fitness.score(frame, res, params))
+            value = float(fitness.score(frame, res, params, ranging))
             if math.isnan(value):
                 return failed(fitness, f"{frame.key}: {fitness.name} is NaN", time.perf_counter() - t_start)
             per_frame.append(value)
             if full:
-                extras.append(_frame_metrics(frame, res, params, convention, score_roi))
+                extras.append(_frame_metrics(frame, res, params, convention, score_roi, ranging))
     except Exception as exc:  # a candidate that raises is a failed trial; the run goes on
         return failed(fitness, f"{type(exc).__name__}: {exc}", time.perf_counter() - t_start)
     names = sorted(set().union(*extras)) if extras else []
@@ -311,24 +321,44 @@ def evaluate(params: StereoParams, frames: FrameSet, fitness: Fitness, full: boo
 
 @dataclass(frozen=True)
 class Task:
-    """One unit of work for an executor: a candidate (as its parameter dict) on a named frame set."""
+    """One unit of work for an executor: a candidate (as its parameter dict) on a named frame set.
+
+    ``reading``: instead of scoring, read each frame as the daemon flies (:func:`branch_distances`): the
+    evaluation's ``per_frame`` holds the distances in m, NaN where it measured nothing (the safety sweep)."""
 
     params: Mapping[str, Any]
     frameset: str = "train"
     full: bool = False
     convention: str | None = None     # None: the fitness's own (default_convention)
+    reading: bool = False
+
+
+def read_frames(params: StereoParams, frames: FrameSet, fitness: Fitness, ranging: RangingConfig) -> Evaluation:
+    """:func:`branch_distances` as an evaluation (per_frame: m, NaN for no distance); FAILED when it raises."""
+    t0 = time.perf_counter()
+    try:
+        distances = branch_distances(params, frames, ranging)
+    except Exception as exc:  # a candidate that raises is refused with its reason, the run goes on
+        return failed(fitness, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
+    return Evaluation(OK, math.nan, per_frame=tuple(math.nan if d is None else float(d) for d in distances),
+                      seconds=time.perf_counter() - t0)
 
 
 class Objective:
-    """What a worker holds: the frame sets (loaded once) and the fitness. Call with a :class:`Task`."""
+    """What a worker holds: the frame sets (loaded once), the fitness and the ranging settings it ranges with.
+    Call with a :class:`Task`."""
 
-    def __init__(self, framesets: Mapping[str, FrameSet], fitness: str):
+    def __init__(self, framesets: Mapping[str, FrameSet], fitness: str, ranging: RangingConfig = FLOWN_RANGING):
         self.framesets = dict(framesets)
         self.fitness = FITNESS[fitness]
+        self.ranging = ranging
 
     def __call__(self, task: Task) -> Evaluation:
         try:
             params = params_from_dict(task.params)
         except Exception as exc:
             return failed(self.fitness, f"{type(exc).__name__}: {exc}")
-        return evaluate(params, self.framesets[task.frameset], self.fitness, task.full, task.convention)
+        frames = self.framesets[task.frameset]
+        if task.reading:
+            return read_frames(params, frames, self.fitness, self.ranging)
+        return evaluate(params, frames, self.fitness, task.full, task.convention, ranging=self.ranging)

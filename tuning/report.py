@@ -3,10 +3,11 @@
 Files written into the report directory:
 
 - ``summary.json``: configuration, per-run results and histories, baseline vs
-  tuned metrics on train and held-out frames, the Pareto front, timings;
+  tuned metrics on the train, validation and test frames, which frames were which, the gate's verdict,
+  the Pareto front, timings;
 - ``table.md``: the change of MSE, PSNR, SSIM, bad-2 (and branch error when
   known) of the tuned parameters against the base (``--base``, by default the manual baseline), train and
-  held-out, next to the paper's reported change;
+  validation and test, next to the paper's reported change, the gate's line and the choice's candidates;
 - ``convergence.png``: best fitness so far per generation, mean +- std over runs
   (the paper's figure), with the baseline as a line;
 - ``pareto.png``: fitness against frame time for every evaluated candidate;
@@ -81,41 +82,57 @@ CONVENTION_TEXT = {
 
 def table_markdown(cmp: Mapping[str, dict], metric: str, references: Mapping[str, Mapping[str, int]] | None = None,
                    base: str = MANUAL_BASELINE, convention: str = "paper",
-                   selection: Mapping[str, Any] | None = None) -> str:
+                   selection: Mapping[str, Any] | None = None, gate: Mapping[str, Any] | None = None,
+                   notes: Sequence[str] = ()) -> str:
     lines = [f"Tuned ({metric}) vs the base it started from: {base}. Metrics: {CONVENTION_TEXT[convention]}."
-             + (" Paper: its tuned vs manual configuration, one pair." if convention == "paper" else ""), ""]
+             + (" Paper: its tuned vs manual configuration, one pair." if convention == "paper" else ""), "",
+             "Frames: the search trained on the train frames, the choice was made on the validation frames, "
+             "and the gate judged on the test frames, which nothing in the choice saw (summary.json: frames)."]
+    lines += [f"**Note:** {note}." for note in notes]
+    lines.append("")
     lines += [f"Reference disparity of the {name} frames: {sources_text(sources)}."
               for name, sources in (references or {}).items() if sources]
-    if len(lines) > 2:
-        lines.append("")
-    lines += ["| frames | metric | base | tuned | change | paper's change |", "|---|---|---|---|---|---|"]
+    lines += ["", "| frames | metric | base | tuned | change | paper's change |", "|---|---|---|---|---|---|"]
     for name, block in cmp.items():
         for m, row in block["metrics"].items():
             paper = f"{PAPER_CHANGE[m]:+.2f}%" if m in PAPER_CHANGE and convention == "paper" else ""
             lines.append(f"| {name} ({block['frames']}) | {m} | {_f(row['base'])} | {_f(row['tuned'])} | "
                          f"{_pct(row['change_pct'])} | {paper} |")
+    if gate:
+        lines += ["", _gate_line(metric, gate)]
     if selection:
-        lines += ["", f"Choice on the {selection['on']} frames among the best training candidates ({metric}; "
-                  "fragile ones cannot win):", "", "| candidate | train | held-out | note |", "|---|---|---|---|"]
-        for i, row in enumerate(selection["candidates"]):
-            note = "base" if i == 0 else ""
-            if i == selection["winner"]:
-                note = (note + " chosen").strip()
-            if row.get("fragile"):
-                note = (note + " rejected: " + row["fragile"]).strip()
-            lines.append(f"| {i} | {_f(row['train'])} | {_f(row['holdout'])} | {note} |")
-    folds = (selection or {}).get("folds") or []
+        lines += _selection_lines(metric, selection)
+    return "\n".join(lines) + "\n"
+
+
+def _gate_line(metric: str, gate: Mapping[str, Any]) -> str:
+    verdict = "refused: " + gate["refused"] if gate.get("refused") else "passed"
+    return (f"Gate, on the {gate['frames']} {gate['on']} frame(s): {metric} base {_f(gate['base'])}, tuned "
+            f"{_f(gate['tuned'])}; {verdict}.")
+
+
+def _selection_lines(metric: str, selection: Mapping[str, Any]) -> list[str]:
+    lines = ["", f"Choice on the {selection['on']} frames among the best training candidates ({metric}; "
+             "fragile ones cannot win):", "", "| candidate | train | validation | note |", "|---|---|---|---|"]
+    for i, row in enumerate(selection["candidates"]):
+        note = "base" if i == 0 else ""
+        if i == selection["winner"]:
+            note = (note + " chosen").strip()
+        if row.get("fragile"):
+            note = (note + " rejected: " + row["fragile"]).strip()
+        lines.append(f"| {i} | {_f(row['train'])} | {_f(row['validation'])} | {note} |")
+    folds = selection.get("folds") or []
     if len(folds) > 1:
         lines += ["", f"{len(folds)}-fold by session: each fold searched on its training sessions and chose on its "
-                  "own held-out ones (above: the fold winners, held-out = mean over the folds, which includes the "
-                  "sessions each trained on; the winner has the largest gain over the base on its own fold's):", "",
-                  "| fold | train frames | held-out frames | base train | winner train | base held-out | "
-                  "winner held-out |", "|---|---|---|---|---|---|---|"]
+                  "own validation ones (above: the fold winners, validation = mean over the folds, which includes "
+                  "the sessions each trained on; the winner has the largest gain over the base on its own fold's):",
+                  "", "| fold | train frames | validation frames | base train | winner train | base validation | "
+                  "winner validation |", "|---|---|---|---|---|---|---|"]
         for f in folds:
-            lines.append(f"| {f['fold']} | {len(f['train_frames'])} | {len(f['holdout_frames'])} | "
-                         f"{_f(f['base_train'])} | {_f(f['winner_train'])} | {_f(f['base_holdout'])} | "
-                         f"{_f(f['winner_holdout'])} |")
-    return "\n".join(lines) + "\n"
+            lines.append(f"| {f['fold']} | {len(f['train_frames'])} | {len(f['validation_frames'])} | "
+                         f"{_f(f['base_train'])} | {_f(f['winner_train'])} | {_f(f['base_validation'])} | "
+                         f"{_f(f['winner_validation'])} |")
+    return lines
 
 
 def _f(x: float) -> str:
@@ -230,7 +247,8 @@ def write_report(outdir: str | Path, summary: Mapping[str, Any], config: Mapping
     if summary.get("comparison"):
         (out / "table.md").write_text(table_markdown(summary["comparison"], metric, summary.get("references"),
                                                      summary.get("base", MANUAL_BASELINE),
-                                                     summary.get("convention", "paper"), summary.get("selection")))
+                                                     summary.get("convention", "paper"), summary.get("selection"),
+                                                     summary.get("gate"), summary.get("notes") or ()))
     runs = summary["runs"]
     plot_convergence(out / "convergence.png", [r["history"] for r in runs], summary["baseline"]["value"], metric,
                      f"{summary['config']['optimizer']}, {metric} "

@@ -1,110 +1,214 @@
 """The tuner's safety sweep: synthetic branches from inside the minimum range out to the working distance,
 rendered at the log's rig by the caller (``TuneRequest.safety``; the tuner renders nothing itself), on which every
 candidate about to win and the chosen one are read as the daemon flies and compared with the base
-(:class:`SafetyScreen`; docs/tuning.md, *The safety sweep*)."""
+(:class:`SafetyScreen`; docs/tuning.md, *The safety sweep*).
+
+The sweep arrives as a session on disk (:class:`SweepFrames`: the caller renders it once per rig and keeps it);
+the workers read it in small chunks, nearest branches first, straight from disk (a sweep at 1920x1080 is over a
+gigabyte of pixels, so no process holds it whole), and a candidate that already reads more frames farther than
+the base did is stopped there.
+"""
 
 from __future__ import annotations
 
 import math
 import statistics
+import threading
 from collections import Counter
-from typing import Any, Callable
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
 
+from uav_depth.core.errors import UavDepthError
 from uav_depth.core.params import StereoParams, params_from_dict
 
-from uav_depth.tuning.frames import FrameData, FrameSet
+from uav_depth.tuning.executor import Executor
+from uav_depth.tuning.frames import DiskFrames, FrameData, FrameSet
 from uav_depth.tuning.metrics import FARTHER_TOL_PCT, branch_signed, is_farther
-from uav_depth.tuning.objective import branch_distances
+from uav_depth.tuning.objective import Task
 from uav_depth.tuning.robust import FartherCheck
-
-
-def _rig(frame: FrameData) -> tuple:
-    return frame.left.shape[:2], frame.focal_px, frame.baseline_m
-
-
-def _variant(key: str) -> str:
-    """The scene variant of a sweep frame, from its key (``safety/plain-s10-0.40m``: plain; cli.commands.tune)."""
-    return key.rsplit("/", 1)[-1].split("-", 1)[0]
-
 
 #: The safety sweep's accuracy rule: in each scene variant (plain, varied, leafy), a candidate's median absolute
 #: branch-distance error over the sweep frames it and the base both read may be at most SWEEP_MEDIAN_FACTOR x the
 #: base's + SWEEP_MEDIAN_SLACK_PCT points (the slack: a base that reads a few frames almost exactly must not refuse
-#: every change). Per variant: gains on leafy frames must not hide a worse nominal case. Measured (2026-12-05, the
-#: 330-frame sweep at 1280x720), on the plain 3 cm branch: the flight file 1.34 %, four files tuned on leafy scenes
-#: 2.2-3.1 %; pooled over the variants one of them passed by 0.002 point and read the real pairs worse.
+#: every change). Per variant, because gains on leafy frames must not hide a worse nominal case: on the
+#: 330-frame sweep at 1280x720 the flight file reads the plain 3 cm branch 1.34 % off, four files tuned on leafy
+#: scenes 2.2-3.1 %, and pooled over the variants one of them passed by 0.002 point and read the real pairs worse
+#: (docs/tuning.md).
 SWEEP_MEDIAN_FACTOR = 1.1
 SWEEP_MEDIAN_SLACK_PCT = 0.25
 #: How a candidate the safety sweep set aside is marked in the choice's rows (and so in the report).
 UNSAFE = "unsafe: "
+#: Sweep frames per task: small enough that each worker reports every second or so at 1280x720 and that a
+#: candidate stopped early has read little more than it had to, large enough that a task's start costs little.
+CHUNK = 4
+
+
+class SweepFrames:
+    """The safety sweep at the log's rig, as the caller keeps it: a session in the log layout at ``path`` (each
+    frame's meta holds its truth), its frame ids and keys in order (``plain-s10-0.40m``: the scene variant, seed
+    and the branch's distance), and ``render``, which renders what is not on disk yet and returns each frame's
+    truth (the nearest significant object's distance, m). Nothing is rendered until a candidate needs the sweep:
+    a tune whose choice finds nothing better than the base never pays for it."""
+
+    def __init__(self, path: str, frame_ids: Sequence[str], keys: Sequence[str],
+                 render: Callable[[], Sequence[float]]):
+        self.path, self.frame_ids, self.keys = str(path), tuple(frame_ids), tuple(keys)
+        self._render = render
+        self._truths: tuple[float, ...] | None = None
+
+    def __len__(self) -> int:
+        return len(self.frame_ids)
+
+    @property
+    def truths(self) -> tuple[float, ...]:
+        """Each frame's truth, m; the first call renders what is missing."""
+        if self._truths is None:
+            self._truths = tuple(float(t) for t in self._render())
+        return self._truths
+
+    def chunks(self) -> list[list[int]]:
+        """Frame indices in tasks of CHUNK, nearest branch first (where candidates go wrong: inside and just
+        outside the minimum range), so a failing candidate is stopped early."""
+        order = sorted(range(len(self)), key=lambda i: (_nominal_m(self.keys[i]), i))
+        return [order[i:i + CHUNK] for i in range(0, len(order), CHUNK)]
+
+    def framesets(self) -> dict[str, DiskFrames]:
+        """The executor's frame sets of the sweep, one per chunk (``sweep0``, ``sweep1`` ...): paths only, read
+        by the workers when a candidate is read."""
+        return {f"sweep{j}": DiskFrames(f"sweep{j}", [(self.path, self.frame_ids[i]) for i in idx])
+                for j, idx in enumerate(self.chunks())}
+
+
+def _nominal_m(key: str) -> float:
+    """The branch distance a sweep key names (``leafy-s10-0.40m``: 0.40), inf when it names none."""
+    try:
+        return float(key.rsplit("-", 1)[-1].rstrip("m"))
+    except ValueError:
+        return float("inf")
+
+
+def rig(frame: FrameData) -> tuple:
+    return frame.left.shape[:2], frame.focal_px, frame.baseline_m
+
+
+def rig_sample(train: FrameSet) -> FrameData | None:
+    """The first calibrated training frame of the rig (image size, focal length, baseline) most of them share:
+    the safety sweep is rendered at its rig. None without a calibrated frame."""
+    calibrated = [f for f in train.frames if f.focal_px and f.baseline_m]
+    if not calibrated:
+        return None
+    common = Counter(rig(f) for f in calibrated).most_common(1)[0][0]
+    return next(f for f in calibrated if rig(f) == common)
+
+
+def _variant(key: str) -> str:
+    """The scene variant of a sweep frame, from its key (``plain-s10-0.40m``: plain)."""
+    return key.rsplit("/", 1)[-1].split("-", 1)[0]
+
+
+@dataclass(frozen=True)
+class Reading:
+    """What one parameter set read on the sweep: distances in m per frame (NaN: no distance, or not read),
+    how many frames were read (all of them unless stopped early), the reason when it could not be read."""
+
+    distances: tuple[float, ...]
+    read: int
+    failed: str | None = None
 
 
 class SafetyScreen:
-    """The safety sweep at the log's rig: ``render`` (``TuneRequest.safety``) gets the first of the calibrated
-    training frames that share the image size, focal length and baseline most of them share. Rendered once, when
-    first needed; each parameter set read on it once, as the daemon flies (objective.branch_distances).
+    """The safety sweep, read through ``executor`` (whose frame sets include ``sweep.framesets()``).
 
     A candidate fails it when it reads more sweep frames farther than the truth (by more than FARTHER_TOL_PCT)
     than the base, or when in some scene variant its median absolute error over the frames both read exceeds
     SWEEP_MEDIAN_FACTOR x the base's + SWEEP_MEDIAN_SLACK_PCT: synthetic scenes judge safety and the nominal case
-    here, the log's own frames judge the rest. :meth:`reject` is the held-out choice's screen (study.select): a
-    candidate about to win that fails is set aside and the next one tried, so a tune ships the best candidate
-    that passes instead of refusing the best one. :meth:`check` is the gate's verdict on the chosen parameters.
-    Inactive (check None) without a sweep or a calibrated training frame."""
+    here, the log's own frames judge the rest. :meth:`reject` is the choice's screen (choice.select): a
+    candidate about to win that fails is set aside and the next one tried. :meth:`check` is the gate's verdict on
+    the chosen parameters. Every parameter set is read once (the base first, once for every fold and the gate).
+    ``progress(what, done, total)``: frames read so far; ``stop``: the tune's stop event (Ctrl-C)."""
 
-    def __init__(self, render: Callable[[FrameData], FrameSet] | None, base: StereoParams, train: FrameSet,
-                 phase: Callable[[str], None] = lambda text: None):
-        self.render, self.base, self.phase = render, base, phase
-        calibrated = [f for f in train.frames if f.focal_px and f.baseline_m] if render is not None else []
-        rigs = Counter(_rig(f) for f in calibrated)     # a log of mixed rigs: the one most of its frames come from
-        self.sample = (next(f for f in calibrated if _rig(f) == rigs.most_common(1)[0][0]) if calibrated
-                       else None)
-        self._frames: FrameSet | None = None
-        self._read: dict[StereoParams, list[float | None]] = {}
+    def __init__(self, sweep: SweepFrames | None, base: StereoParams, executor: Executor | None = None,
+                 progress: Callable[[str, int, int], None] = lambda what, done, total: None,
+                 stop: threading.Event | None = None, phase: Callable[[str], None] = lambda text: None):
+        self.sweep, self.base, self.executor = sweep, base, executor
+        self.progress, self.stop, self.phase = progress, stop, phase
+        self._chunks = sweep.chunks() if sweep is not None else []
+        self._readings: dict[StereoParams, Reading] = {}
+        self._labels = 0
 
     @property
     def active(self) -> bool:
-        return self.sample is not None
+        return self.sweep is not None and self.executor is not None
 
-    def sweep(self) -> FrameSet:
-        """The sweep's frames, rendered when first asked for."""
-        if self._frames is None:
-            self.phase("the safety sweep: the base and each candidate about to win on synthetic branches from "
-                       "inside the minimum range out to 3 m")
-            self._frames = self.render(self.sample)
-        return self._frames
+    def reading(self, params: StereoParams, limit: int | None = None) -> Reading:
+        """``params`` read on the sweep, once; with ``limit``, stopped as soon as more than ``limit`` frames read
+        farther than the truth (the verdict is then known: it fails)."""
+        known = self._readings.get(params)
+        if known is not None and (known.read == len(self.sweep) or known.failed or limit is not None):
+            return known
+        if not self._readings:
+            self.phase(f"the safety sweep: the base and each candidate about to win, as the daemon flies them, on "
+                       f"{len(self.sweep)} synthetic branches from inside the minimum range out to 3 m")
+        label = "the base" if params == self.base else f"candidate {self._next_label()}"
+        reading = self._read(params, label, limit)
+        self._readings[params] = reading
+        if self.stop is not None and self.stop.is_set():
+            from uav_depth.tuning.study import TuneInterrupted
+            raise TuneInterrupted("interrupted in the safety sweep; run the same command with --resume to "
+                                  "continue (every search result is kept)")
+        return reading
 
-    def distances(self, params: StereoParams) -> list[float | None]:
-        """What ``params`` reads on each sweep frame (None: no distance), read once per parameter set."""
-        if params not in self._read:
-            self._read[params] = branch_distances(params, self.sweep())
-        return self._read[params]
+    def _next_label(self) -> int:
+        self._labels += 1
+        return self._labels
+
+    def _read(self, params: StereoParams, label: str, limit: int | None) -> Reading:
+        sweep, n = self.sweep, len(self.sweep)
+        truths = sweep.truths       # rendered here when no candidate needed the sweep before
+        out = [math.nan] * n
+        tasks = [Task(params.to_dict(), f"sweep{j}", reading=True) for j in range(len(self._chunks))]
+        halt = threading.Event()
+        read = farther = 0
+        for j, ev in self.executor.imap(tasks, halt):
+            if not ev.ok:
+                halt.set()
+                return Reading(tuple(out), read, ev.reason)
+            for i, d in zip(self._chunks[j], ev.per_frame):
+                out[i] = d
+                farther += is_farther(None if math.isnan(d) else d, truths[i])
+            read += len(self._chunks[j])
+            self.progress(f"safety sweep: {label}, frames read", read, n)
+            if (limit is not None and farther > limit) or (self.stop is not None and self.stop.is_set()):
+                halt.set()
+        return Reading(tuple(out), read)
 
     def _verdict(self, params: StereoParams, rejecting: bool) -> FartherCheck:
-        frames = self.sweep().frames
-        truths = [f.branch_distance_m for f in frames]
-        base_d, tuned_d = self.distances(self.base), self.distances(params)
-        nb, nt = (sum(is_farther(d, t) for d, t in zip(ds, truths)) for ds in (base_d, tuned_d))
-        both: dict[str, list[tuple[float, float]]] = {}      # per variant: (base, tuned) abs error, frames both read
-        for f, b, c, t in zip(frames, base_d, tuned_d, truths):
-            if math.isfinite(t) and t > 0:
-                e = abs(branch_signed(b, t)), abs(branch_signed(c, t))
-                if math.isfinite(e[0]) and math.isfinite(e[1]):
-                    both.setdefault(_variant(f.key), []).append(e)
-        pooled = [e for es in both.values() for e in es]
-        mb, mt = ((statistics.median(e[i] for e in pooled) if pooled else None) for i in (0, 1))
+        sweep = self.sweep
+        base = self.reading(self.base)
+        if base.failed:
+            raise UavDepthError(f"the base parameters cannot be read on the safety sweep: {base.failed}")
+        nb = _farther(base, sweep)
+        tuned = self.reading(params, limit=nb if rejecting else None)
         who = "reads" if rejecting else "the tuned parameters read"
+        if tuned.failed:
+            return FartherCheck(nb, 0, len(sweep), f"{who} no distance on the safety sweep: {tuned.failed}")
+        nt = _farther(tuned, sweep)
         reasons = []
         if nt > nb:
-            reasons.append(f"{who} {nt} of the {len(frames)} safety-sweep frame(s) farther than the truth by more "
-                           f"than {FARTHER_TOL_PCT:g} %, the base {nb}")
-        for variant, es in both.items():
-            vb, vt = statistics.median(e[0] for e in es), statistics.median(e[1] for e in es)
-            if vt > SWEEP_MEDIAN_FACTOR * vb + SWEEP_MEDIAN_SLACK_PCT:
-                reasons.append(f"{who} the {len(es)} {variant} safety-sweep frame(s) both read with a median absolute "
-                               f"error of {vt:.2f} %, above {SWEEP_MEDIAN_FACTOR:g} x the base's {vb:.2f} % + "
-                               f"{SWEEP_MEDIAN_SLACK_PCT:g}")
-        return FartherCheck(nb, nt, len(frames), "; ".join(reasons) or None, base_median=mb, tuned_median=mt)
+            first = f"the first {tuned.read} of " if tuned.read < len(sweep) else ""
+            reasons.append(f"{who} {nt} of {first}the {len(sweep)} safety-sweep frame(s) farther than the truth by "
+                           f"more than {FARTHER_TOL_PCT:g} %, the base {nb}")
+        both = _errors_both_read(sweep, base, tuned)
+        pooled = [e for es in both.values() for e in es]
+        mb, mt = ((statistics.median(e[i] for e in pooled) if pooled else None) for i in (0, 1))
+        if tuned.read == len(sweep):
+            for variant, es in both.items():
+                vb, vt = statistics.median(e[0] for e in es), statistics.median(e[1] for e in es)
+                if vt > SWEEP_MEDIAN_FACTOR * vb + SWEEP_MEDIAN_SLACK_PCT:
+                    reasons.append(f"{who} the {len(es)} {variant} safety-sweep frame(s) both read with a median "
+                                   f"absolute error of {vt:.2f} %, above {SWEEP_MEDIAN_FACTOR:g} x the base's "
+                                   f"{vb:.2f} % + {SWEEP_MEDIAN_SLACK_PCT:g}")
+        return FartherCheck(nb, nt, len(sweep), "; ".join(reasons) or None, base_median=mb, tuned_median=mt)
 
     def reject(self, params_dict: dict[str, Any]) -> str | None:
         """Why a candidate may not win (it fails the sweep), or None."""
@@ -117,3 +221,16 @@ class SafetyScreen:
         if not self.active or chosen == self.base:
             return None
         return self._verdict(chosen, rejecting=False)
+
+
+def _farther(reading: Reading, sweep: SweepFrames) -> int:
+    return sum(is_farther(None if math.isnan(d) else d, t) for d, t in zip(reading.distances, sweep.truths))
+
+
+def _errors_both_read(sweep: SweepFrames, base: Reading, tuned: Reading) -> dict[str, list[tuple[float, float]]]:
+    """Per scene variant: (base, tuned) absolute error % on the frames both read."""
+    both: dict[str, list[tuple[float, float]]] = {}
+    for key, b, c, t in zip(sweep.keys, base.distances, tuned.distances, sweep.truths):
+        if math.isfinite(t) and t > 0 and math.isfinite(b) and math.isfinite(c):
+            both.setdefault(_variant(key), []).append((abs(branch_signed(b, t)), abs(branch_signed(c, t))))
+    return both

@@ -212,8 +212,8 @@ def _fits(dist, value: Any) -> bool:
 #: Another process opening the same new store at the same moment (optuna-dashboard, ``optuna studies``, a
 #: script reading it through Optuna) creates Optuna's schema too: SQLite then refuses one side's CREATE TABLE
 #: ("table studies already exists"), or its schema-version row ("UNIQUE constraint failed:
-#: alembic_version.version_num"), or holds the file locked for a moment. The tuner exited 1 on it, 2 runs in 8
-#: with a reader polling the store as it started (2026-12-04). Opening again finds the schema made.
+#: alembic_version.version_num"), or holds the file locked for a moment (measured: 2 runs in 8 with a reader
+#: polling the store as it started). Opening again finds the schema made.
 OPEN_RETRIES = 10
 OPEN_RETRY_S = 0.1
 

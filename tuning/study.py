@@ -29,17 +29,17 @@ import numpy as np
 
 from uav_depth.core.errors import ConfigError, UavDepthError
 from uav_depth.core.params import StereoParams, params_from_dict
+from uav_depth.daemon.ranging import RangingConfig
 
 from uav_depth.tuning.executor import Executor
 from uav_depth.tuning.frames import FrameSet
-from uav_depth.tuning.objective import FITNESS, Evaluation, Task, failed
+from uav_depth.tuning.objective import FITNESS, FLOWN_RANGING, Evaluation, Task, failed
 from uav_depth.tuning.optimizers import OPTIMIZERS, make_space
 from uav_depth.tuning.space import describe_space
 from uav_depth.tuning.store import RunStore
 
 #: Bump when the meaning of an evaluation changes: old cached evaluations are then not reused.
-#: 2: candidates with a compute.roi are scored inside it (1 counted the unanswered rest as errors).
-EVAL_VERSION = 2
+EVAL_VERSION = 3
 
 
 class TuneInterrupted(UavDepthError):
@@ -114,8 +114,12 @@ class StudyResult:
         return params_from_dict(self.best.best_params)
 
 
-def candidate_key(params: Mapping[str, Any], frames_digest: str, metric: str) -> str:
-    blob = json.dumps({"p": params, "f": frames_digest, "m": metric, "v": EVAL_VERSION}, sort_keys=True, default=str)
+def candidate_key(params: Mapping[str, Any], frames_digest: str, metric: str,
+                  ranging: RangingConfig = FLOWN_RANGING) -> str:
+    """The cache key of one evaluation: the parameters, the frames, the fitness, the ranging settings it ranged
+    with and :data:`EVAL_VERSION`."""
+    blob = json.dumps({"p": params, "f": frames_digest, "m": metric, "r": asdict(ranging), "v": EVAL_VERSION},
+                      sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:24]
 
 
@@ -124,8 +128,10 @@ class Study:
 
     def __init__(self, config: StudyConfig, train: FrameSet, executor: Executor, store: RunStore,
                  base: StereoParams, progress: Callable[[int, float], None] | None = None,
-                 stop: threading.Event | None = None, timeout_s: float | None = None, frameset: str = "train"):
+                 stop: threading.Event | None = None, timeout_s: float | None = None, frameset: str = "train",
+                 ranging: RangingConfig = FLOWN_RANGING):
         self.config, self.train, self.executor, self.store, self.base = config, train, executor, store, base
+        self.ranging = ranging        # what the executor ranges with: part of every cache key
         self.frameset = frameset      # the executor's name of ``train`` (a fold's training set: "train1" ...)
         self.timeout_s = timeout_s
         self._deadline = math.inf
@@ -149,7 +155,7 @@ class Study:
         return {"metric": self.config.metric, "optimizer": self.config.optimizer,
                 "population": self.config.population, "seed": self.config.seed, "space": describe_space(self.space),
                 "frames": self.digest, "frame_keys": self.train.keys, "base": self.base.to_dict(),
-                "eval_version": EVAL_VERSION}
+                "ranging": asdict(self.ranging), "eval_version": EVAL_VERSION}
 
     def open(self, resume: bool) -> None:
         """Record this study in the store, or check it matches the stored one on ``resume``."""
@@ -202,6 +208,7 @@ class Study:
             self.store.put(key, params, params_from_dict(params).hash(), ev)
             self._memo[key] = ev
             self.evaluated += 1
+            self.cached += len(idx) - 1       # the same candidate proposed again in this batch: answered once
             for i in idx:
                 out[i] = ev
             self.progress(len(idx), ev.value if ev.ok else math.nan)
@@ -220,12 +227,15 @@ class Study:
             params = self.base.replace(**changes).to_dict()
         except ConfigError as exc:
             rejected = {"changes": changes, "invalid": True}
-            return candidate_key(rejected, self.digest, self.config.metric), rejected, failed(self.fitness, str(exc))
-        return candidate_key(params, self.digest, self.config.metric), params, None
+            return self.key(rejected), rejected, failed(self.fitness, str(exc))
+        return self.key(params), params, None
+
+    def key(self, params: Mapping[str, Any]) -> str:
+        return candidate_key(params, self.digest, self.config.metric, self.ranging)
 
     def baseline(self) -> Evaluation:
         params = self.base.to_dict()
-        return self.evaluate([(candidate_key(params, self.digest, self.config.metric), params, None)])[0]
+        return self.evaluate([(self.key(params), params, None)])[0]
 
     # -- the loop -----------------------------------------------------------------------------------------------
 

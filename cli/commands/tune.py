@@ -33,17 +33,23 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="schema keys the improved space tunes, comma-separated: 'default' = the paper's nine + "
                         "sgbm.block_size, 'paper' = the nine, 'speed' = compute.scale and compute.grey (added to "
                         "the default with --max-ms); ignored by ga-paper")
+    p.add_argument("--test", default="auto",
+                   help="frames set aside first, that only the gate and the report see (nothing in the choice "
+                        "does): --out is written only when the result beats the base on them. auto (default): "
+                        "the last quarter of the sessions (of a single session, its last 20%% of frames, which are "
+                        "the same flight: the report warns that they are correlated); none (auto is none with "
+                        "--holdout none); a fraction (0.2); a directory; or a comma list of session names / "
+                        "session/frame keys / frame ids")
     p.add_argument("--holdout", default="auto",
-                   help="frames the search never trains on; the winner is chosen on them and --out is written "
-                        "only when it beats the base on them. auto (default): the last third of the sessions "
-                        "(30%% of the frames of a single session); none; a fraction (0.3); a directory; or a "
-                        "comma list of session names / session/frame keys / frame ids")
+                   help="of the frames left, those the search never trains on and the choice is made on "
+                        "(validation). auto (default): k folds by session (below), else the last third of the "
+                        "sessions (30%% of the frames of a single session); none; a fraction (0.3); a directory; "
+                        "or a comma list of names, as --test")
     p.add_argument("--folds", default="auto",
-                   help="k-fold over sessions: each fold searches on the other sessions and chooses on its own; "
-                        "the winner is the fold winner with the largest gain over the base on its own held-out "
-                        "sessions (the only ones it did not train on), the gate the "
-                        "cross-validated estimate. auto (default, with --holdout auto): 3 folds when the log has "
-                        "2..8 sessions (k times the search cost), else one split; 1: one split")
+                   help="k-fold over the sessions left after --test: each fold searches on the other sessions and "
+                        "chooses on its own; the winner is the fold winner with the largest gain over the base on "
+                        "its own validation sessions. auto (default, with --holdout auto): 3 folds when 2..8 "
+                        "sessions are left (k times the search cost), else one split; 1: one split")
     p.add_argument("--force", action="store_true",
                    help="write --out even when the result does not beat the base on the held-out frames")
     p.add_argument("--timeout", type=float, default=None,
@@ -70,10 +76,17 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="choose the best candidate whose frame time (re-timed here) is at most this")
     p.add_argument("--safety-sweep", choices=("standard", "quick", "none"), default="standard",
                    help="standard (default): read each candidate about to win on synthetic branches from inside the "
-                        "minimum range out to 3 m (330 frames rendered at the log's rig), set it aside when it reads "
-                        "more of those frames farther than the truth than the base does or ranges a scene variant "
-                        "less accurately, and refuse to write such a choice; quick: 84 frames (weaker: for trying "
-                        "things out); none: skip")
+                        "minimum range out to 3 m (330 frames rendered at the log's rig, once per rig: see "
+                        "--sweep-cache), set it aside when it reads more of those frames farther than the truth "
+                        "than the base does or ranges a scene variant less accurately, and refuse to write such a "
+                        "choice; quick: 84 frames (weaker: for trying things out); none: skip")
+    p.add_argument("--sweep-cache", default=None,
+                   help="where the rendered safety sweep is kept per rig (default: $XDG_CACHE_HOME/uav-depth/"
+                        "safety-sweep, else ~/.cache/...); none: render into a temporary directory")
+    p.add_argument("--config", default=None,
+                   help="the run config the daemon will fly (its ranging: section is what every candidate is "
+                        "ranged with); default: what run would load ($UAV_DEPTH_CONFIG), else the default "
+                        "ranging settings")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -91,66 +104,55 @@ def rejected_path(out: str) -> str:
     return f"{root}.rejected{ext or '.yaml'}"
 
 
-def safety_frames(sample, sweep: str = "standard"):
-    """The named sweep of uav_depth.sim.sweep (SWEEPS) rendered at the rig of ``sample`` (a FrameData of the log):
-    its image size, focal length and baseline; each frame knows the nearest significant object's distance."""
-    from uav_depth.sim.sweep import SWEEPS, render_with_truth
-    from uav_depth.tuning.frames import FrameData, FrameSet
 
-    h, w = sample.left.shape[:2]
-    frames = []
-    for key, cfg in SWEEPS[sweep](w, h, sample.focal_px, sample.baseline_m):
-        left, right, truth_m, roi = render_with_truth(cfg)
-        frames.append(FrameData(f"safety/{key}", left, right, branch_distance_m=truth_m, roi=roi,
-                                focal_px=cfg.focal_px, baseline_m=cfg.baseline_m, reference_source="synthetic"))
-    return FrameSet("safety", tuple(frames))
+def ranging_of(args: argparse.Namespace):
+    """(the ranging settings every candidate is ranged with, where they came from): the ``ranging:`` section of
+    the config run would load (``--config``, else ``$UAV_DEPTH_CONFIG``, with run's ``UAV_DEPTH_*`` overrides),
+    else the daemon's defaults."""
+    from uav_depth.cli.sources import SOURCES
+    from uav_depth.daemon.config import load_run_config
+    from uav_depth.daemon.ranging import RangingConfig
+
+    path = args.config or os.environ.get("UAV_DEPTH_CONFIG")
+    if not path:
+        return RangingConfig(), "the default ranging settings (no --config, no UAV_DEPTH_CONFIG)"
+    return load_run_config(path, sources=SOURCES).ranging, f"the ranging settings of {path}"
 
 
-def run(args: argparse.Namespace) -> int:
-    from uav_depth.cli.progress import Counted, Progress
-
-    terminal = Progress(enabled=False if args.no_progress else None)   # the phases outside the bar
-    terminal.phase("loading the tuner")     # its imports take seconds on a small machine
-    import datetime
+def build_request(args: argparse.Namespace, terminal, stop):
+    """The TuneRequest of the command line (the frames are loaded by the tune itself)."""
     import functools
-    import math
-    import signal
-    import sys
-    import threading
 
-    import cv2
-    from tqdm import tqdm
-
-    from uav_depth.core import __version__
-    from uav_depth.cli.main import EXIT_ERROR, EXIT_INTERRUPTED
-    from uav_depth.core.params import DEFAULT_PARAMS, load_params, save_params
-
-    from uav_depth.tuning.objective import FITNESS
-    from uav_depth.tuning.report import MANUAL_BASELINE, sources_text, write_report
-    from uav_depth.tuning.space import describe_space
-    from uav_depth.tuning.study import TuneInterrupted
-    from uav_depth.tuning.tune import Hooks, TuneRequest, study_config, tune
+    from uav_depth.cli.tune_sweep import safety_frames
+    from uav_depth.core.params import DEFAULT_PARAMS, load_params
+    from uav_depth.tuning.tune import TuneRequest, study_config
 
     config = study_config(args.optimizer, args.metric, args.keys, args.max_ms, args.population, args.generations,
                           args.runs, args.seed)
-    metric, fitness = config.metric, FITNESS[config.metric]
     base = apply_sets(load_params(args.base) if args.base else DEFAULT_PARAMS, args.overrides)
-    request = TuneRequest(logdir=args.logdir, config=config, base=base, store_path=_store_path(args),
-                          holdout=args.holdout, folds=args.folds, resume=args.resume, timeout_s=args.timeout,
-                          max_ms=args.max_ms, workers=args.workers, ray_address=args.ray_address,
-                          safety=(None if args.safety_sweep == "none" else
-                                  functools.partial(safety_frames, sweep=args.safety_sweep)))
+    ranging, ranging_source = ranging_of(args)
+    terminal.phase(f"ranging every candidate with {ranging_source}")
+    workers = args.workers if args.workers is not None else (os.cpu_count() or 1)
+    safety = None if args.safety_sweep == "none" else functools.partial(
+        safety_frames, sweep=args.safety_sweep, cache=args.sweep_cache, workers=workers, phase=terminal.phase,
+        progress=terminal.counter("safety sweep: frames rendered"), stop=stop)
+    return TuneRequest(logdir=args.logdir, config=config, base=base, store_path=_store_path(args),
+                       holdout=args.holdout, folds=args.folds, test=args.test, resume=args.resume,
+                       timeout_s=args.timeout, max_ms=args.max_ms, workers=args.workers,
+                       ray_address=args.ray_address, ranging=ranging, safety=safety), ranging_source
 
-    # Signal handlers only set the event; the study stops at the next result and
-    # keeps every finished evaluation. A second Ctrl-C interrupts at once.
-    stop = threading.Event()
 
-    def _on_signal(signum, frame):
-        stop.set()
-        signal.signal(signum, signal.SIG_DFL if signum != signal.SIGINT else signal.default_int_handler)
+def _hooks(args: argparse.Namespace, metric: str, terminal, stop, bars: list):
+    """The progress bar of the searches and the terminal's phase and step lines."""
+    import math
 
-    bars: list = []
-    best = {"u": -math.inf}
+    from tqdm import tqdm
+
+    from uav_depth.cli.progress import Counted
+    from uav_depth.tuning.objective import FITNESS
+    from uav_depth.tuning.tune import Hooks
+
+    fitness, best = FITNESS[metric], {"u": -math.inf}
 
     def begin(total: int) -> None:
         bars.append(tqdm(total=total, unit="cand", disable=True if args.no_progress else None, dynamic_ncols=True,
@@ -165,11 +167,29 @@ def run(args: argparse.Namespace) -> int:
     def searched() -> None:
         bars[0].close()               # the phases after the last search print below the bar
 
-    hooks = Hooks(phase=terminal.phase, begin=begin, progress=progress, searched=searched, stop=stop,
-                  count=lambda executor, what: Counted(executor, terminal, what))
+    return Hooks(phase=terminal.phase, begin=begin, progress=progress, searched=searched, stop=stop,
+                 step=terminal.step, count=lambda executor, what: Counted(executor, terminal, what))
+
+
+def _run_tune(request, args: argparse.Namespace, terminal, stop):
+    """The tune under the terminal's hooks; the exit code instead when it was interrupted. Signal handlers only
+    set the event; the tune stops at the next result and keeps every finished evaluation. A second Ctrl-C
+    interrupts at once."""
+    import signal
+    import sys
+
+    from uav_depth.cli.main import EXIT_INTERRUPTED
+    from uav_depth.tuning.study import TuneInterrupted
+    from uav_depth.tuning.tune import tune
+
+    def _on_signal(signum, frame):
+        stop.set()
+        signal.signal(signum, signal.SIG_DFL if signum != signal.SIGINT else signal.default_int_handler)
+
+    bars: list = []
     previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        decision = tune(request, hooks)
+        return tune(request, _hooks(args, request.config.metric, terminal, stop, bars))
     except TuneInterrupted as exc:
         print(f"uav-depth tune: {exc}", file=sys.stderr)
         return EXIT_INTERRUPTED
@@ -179,46 +199,67 @@ def run(args: argparse.Namespace) -> int:
         for s, h in previous.items():
             signal.signal(s, h)
 
-    d, k, cross, selection, result = decision, decision.k, decision.cross, decision.selection, decision.result
-    train, holdout, convention = d.train, d.holdout, d.convention
-    summary = d.summary()
-    summary.update(store=request.store_path,
-                   base=(os.path.abspath(args.base) if args.base else MANUAL_BASELINE)
-                   + "".join(f" --set {item}" for item in args.overrides))
-    held_base, held_tuned = selection.base["holdout"], selection.chosen["holdout"]
-    print(f"{args.optimizer} on {len(train)} train frame(s): {metric} base {result.baseline.value:.4g} -> "
-          f"tuned {d.chosen_value:.4g}"
-          + (f"; held-out ({len(holdout)}): {held_base:.4g} -> {held_tuned:.4g}" if len(holdout) and cross is None
-             else "")
-          + (f"; {k}-fold held-out: cross-validated {cross.cv_base:.4g} -> {cross.cv_tuned:.4g}, chosen mean "
-             f"{held_base:.4g} -> {held_tuned:.4g}" if cross is not None else "")
-          + f"  [{result.evaluated} evaluated, {result.cached} cached, {result.wall_s:.0f} s"
-          + (", stopped by --timeout" if result.timed_out else "") + "]")
-    if "reference" in fitness.needs:
-        print("measured against: " + "; ".join(f"{name}: {sources_text(sources)}"
-                                               for name, sources in summary["references"].items() if sources))
-    if d.safety is not None:
-        print(f"safety sweep ({d.safety.frames} synthetic frames at the log's rig): read farther than the truth by "
-              f"more than 2 %: base {d.safety.base}, tuned {d.safety.tuned}")
+
+def result_line(d, optimizer: str) -> str:
+    """The one line that says what the tune found: training, validation and test figures, and the counts the
+    progress bar showed."""
+    sel, cross, metric, c = d.selection, d.cross, d.metric, d.counts
+    train, valid, test = (d.framesets[n] for n in ("train", "validation", "test"))
+    parts = [f"{optimizer} on {len(train)} train frame(s): {metric} base {d.result.baseline.value:.4g} -> tuned "
+             f"{d.chosen_value:.4g}"]
+    if cross is not None:
+        parts.append(f"{d.k}-fold validation (chosen on it): {cross.cv_base:.4g} -> {cross.cv_tuned:.4g}")
+    elif len(valid):
+        parts.append(f"validation ({len(valid)}, chosen on it): {sel.base['validation']:.4g} -> "
+                     f"{sel.chosen['validation']:.4g}")
+    if len(test):
+        parts.append(f"test ({len(test)}, unseen by the choice): {d.verdict.base_value:.4g} -> "
+                     f"{d.verdict.tuned_value:.4g}")
+    wall = sum(r.wall_s for r in d.results)
+    return ("; ".join(parts) + f"  [{c['candidates']} candidates: {c['evaluated']} evaluated, {c['cached']} from the "
+            f"cache, {wall:.0f} s" + (", stopped by --timeout" if any(r.timed_out for r in d.results) else "") + "]")
+
+
+def _provenance(d, args: argparse.Namespace, summary: dict, request) -> dict:
+    import datetime
+
+    import cv2
+
+    from uav_depth.core import __version__
+    from uav_depth.tuning.objective import FITNESS
+
+    sel, cross, v = d.selection, d.cross, d.verdict
+    return {
+        "tool": "uav-depth tune", "version": __version__, "opencv": cv2.__version__,
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "metric": d.metric, "convention": d.convention, "fitness": d.chosen_value,
+        "baseline_fitness": d.result.baseline.value, "validation_fitness": sel.chosen["validation"],
+        "validation_baseline_fitness": sel.base["validation"], "chosen_on": sel.on,
+        "judged_on": v.on, "judged_fitness": v.tuned_value, "judged_baseline_fitness": v.base_value,
+        "data": os.path.abspath(args.logdir), "frames": len(d.framesets["train"]), "frames_digest": d.study.digest,
+        "test": args.test, "test_frames": len(d.framesets["test"]), "holdout": args.holdout,
+        "validation_frames": len(d.framesets["validation"]), "folds": d.k,
+        "cv_fitness": None if cross is None else cross.cv_tuned,
+        "cv_baseline_fitness": None if cross is None else cross.cv_base,
+        "seed": args.seed, "optimizer": args.optimizer, "population": args.population,
+        "generations": args.generations, "runs": args.runs, "best_run": d.result.best.run,
+        "max_ms": args.max_ms, "store": os.path.abspath(request.store_path), "forced": bool(d.refused),
+        "ranging": summary["ranging"],
+        "references": summary["references"]["train"] if "reference" in FITNESS[d.metric].needs else None}
+
+
+def _write_params(d, args: argparse.Namespace, summary: dict, request) -> int:
+    """--out (or OUT.rejected.yaml beside it) and the refusal or warning line; the exit status."""
+    import sys
+
+    from uav_depth.cli.main import EXIT_ERROR
+    from uav_depth.core.params import save_params
+
     blocked, rejected = d.blocked, d.refused
     status = EXIT_ERROR if blocked or (rejected and args.out and not args.force) else 0
     if args.out and blocked is None:
-        provenance = {
-            "tool": "uav-depth tune", "version": __version__, "opencv": cv2.__version__,
-            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-            "metric": metric, "convention": convention, "fitness": d.chosen_value,
-            "baseline_fitness": result.baseline.value, "holdout_fitness": held_tuned,
-            "holdout_baseline_fitness": held_base, "chosen_on": selection.on,
-            "data": os.path.abspath(args.logdir), "frames": len(train), "frames_digest": d.study.digest,
-            "holdout": args.holdout, "holdout_frames": len(holdout), "folds": k,
-            "cv_fitness": None if cross is None else cross.cv_tuned,
-            "cv_baseline_fitness": None if cross is None else cross.cv_base,
-            "seed": args.seed, "optimizer": args.optimizer, "population": args.population,
-            "generations": args.generations, "runs": args.runs, "best_run": result.best.run,
-            "max_ms": args.max_ms, "store": os.path.abspath(request.store_path), "forced": bool(rejected),
-            "references": summary["references"]["train"] if "reference" in fitness.needs else None}
         target = rejected_path(args.out) if status else args.out
-        save_params(d.chosen, target, provenance)
+        save_params(d.chosen, target, _provenance(d, args, summary, request))
         print(f"wrote {target}" + (f" (--force: {rejected})" if rejected and not status else ""))
     if blocked:
         print(f"uav-depth tune: error: {blocked}", file=sys.stderr)
@@ -227,15 +268,81 @@ def run(args: argparse.Namespace) -> int:
               "--force writes it anyway", file=sys.stderr)
     elif rejected and not args.out:
         print(f"uav-depth tune: warning: {rejected}", file=sys.stderr)
+    return status
+
+
+def _write_report(d, args: argparse.Namespace, summary: dict, request, terminal) -> None:
+    import cv2
+
+    from uav_depth.core import __version__
+    from uav_depth.tuning.report import write_report
+    from uav_depth.tuning.space import describe_space
+
+    resolved = {"logdir": os.path.abspath(args.logdir), "test": args.test, "holdout": args.holdout,
+                "metric": d.metric, "convention": d.convention, "optimizer": args.optimizer,
+                "population": args.population, "generations": args.generations, "runs": args.runs,
+                "seed": args.seed, "workers": d.workers, "executor": d.executor_kind, "ray_address": args.ray_address,
+                "max_ms": args.max_ms, "timeout_s": args.timeout, "store": request.store_path,
+                "space": describe_space(d.study.space), "base": request.base.to_dict(), "out": args.out,
+                "ranging": summary["ranging"], "opencv": cv2.__version__, "version": __version__}
+    terminal.phase(f"writing the report and its plots into {args.report}")
+    write_report(args.report, summary, resolved, [d.framesets[n] for n in d.names], request.base, d.chosen,
+                 d.points)
+    print(f"wrote report {args.report}")
+
+
+def _closing_lines(d, request) -> None:
+    """Where every candidate is kept and how to browse it; a warning when the result is much slower."""
+    import sys
+
+    from uav_depth.tuning.store import storage_url
+
+    url = storage_url(request.store_path)
+    print(f"run store: {request.store_path} (every candidate, an Optuna study); browse it with: "
+          f"optuna-dashboard {url}")
+    if d.frame_ms is not None and d.frame_ms[1] > SLOWER_WARN * d.frame_ms[0]:
+        b, t = d.frame_ms
+        print(f"uav-depth tune: warning: the tuned parameters take {t:.0f} ms a frame, {t / b:.1f} x the base's "
+              f"{b:.0f} ms (timed side by side here, as the daemon flies them); --max-ms MS bounds the frame time",
+              file=sys.stderr)
+
+
+#: Warn when the result takes more than this many times the base's frame time.
+SLOWER_WARN = 2.0
+
+
+def run(args: argparse.Namespace) -> int:
+    import threading
+
+    from uav_depth.cli.progress import Progress
+
+    terminal = Progress(enabled=False if args.no_progress else None)   # the phases outside the bar
+    terminal.phase("loading the tuner")     # its imports take seconds on a small machine
+    stop = threading.Event()
+    request, ranging_source = build_request(args, terminal, stop)
+    d = _run_tune(request, args, terminal, stop)
+    if isinstance(d, int):
+        return d
+    from dataclasses import asdict
+
+    from uav_depth.tuning.objective import FITNESS
+    from uav_depth.tuning.report import MANUAL_BASELINE, sources_text
+
+    summary = d.summary()
+    summary.update(store=request.store_path, ranging={"from": ranging_source, **asdict(request.ranging)},
+                   base=(os.path.abspath(args.base) if args.base else MANUAL_BASELINE)
+                   + "".join(f" --set {item}" for item in args.overrides))
+    print(result_line(d, args.optimizer))
+    for note in d.split.notes:
+        print(f"note: {note}")
+    if "reference" in FITNESS[d.metric].needs:
+        print("measured against: " + "; ".join(f"{name}: {sources_text(sources)}"
+                                               for name, sources in summary["references"].items() if sources))
+    if d.verdict.safety is not None:
+        print(f"safety sweep ({d.verdict.safety.frames} synthetic frames at the log's rig): read farther than the "
+              f"truth by more than 2 %: base {d.verdict.safety.base}, tuned {d.verdict.safety.tuned}")
+    status = _write_params(d, args, summary, request)
     if args.report:
-        resolved = {"logdir": os.path.abspath(args.logdir), "holdout": args.holdout, "metric": metric,
-                    "convention": convention, "optimizer": args.optimizer, "population": args.population,
-                    "generations": args.generations, "runs": args.runs, "seed": args.seed,
-                    "workers": d.workers, "executor": d.executor_kind, "ray_address": args.ray_address,
-                    "max_ms": args.max_ms, "timeout_s": args.timeout, "store": request.store_path,
-                    "space": describe_space(d.study.space), "base": base.to_dict(), "out": args.out,
-                    "opencv": cv2.__version__, "version": __version__}
-        terminal.phase(f"writing the report and its plots into {args.report}")
-        write_report(args.report, summary, resolved, [d.framesets[n] for n in d.names], base, d.chosen, d.points)
-        print(f"wrote report {args.report}")
+        _write_report(d, args, summary, request, terminal)
+    _closing_lines(d, request)
     return status

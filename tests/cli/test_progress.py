@@ -169,27 +169,36 @@ def test_demo_says_what_it_renders_and_counts_pairs(tmp_path, capsys):
 
 
 def test_tune_announces_every_phase_after_its_bar(tiny_session, tmp_path):
-    """What runs after the progress bar (choosing on held-out frames, full scores, the report) says so."""
+    """What runs after the progress bar (choosing on the validation frames, full scores, the safety sweep, the
+    report) says so, and the safety sweep counts the frames it renders and reads."""
     rep = tmp_path / "rep"
     code, lines = on_a_terminal(["tune", tiny_session / "s", "--base", tiny_session / "base.yaml", "--optimizer",
                                  "random", "--population", "2", "--generations", "1", "--holdout", "0.5",
                                  "--workers", "1", "--store", tmp_path / "store.sqlite", "--report", rep,
-                                 "--safety-sweep", "quick"])
-    assert code in (0, 1)       # whether the random candidates beat the base is not the point here
+                                 "--safety-sweep", "quick", "--sweep-cache", tmp_path / "cache", "--force"])
+    assert code == 0
     phases = [line for line in lines if line.endswith(" ...") and "|" not in line]
-    # each evaluation after the bar is counted: the held-out choice, then base and chosen on train and holdout
+    # each evaluation after the bar is counted: the choice, then base and chosen on every frame set
     assert any(line.startswith("  candidates scored 1/") for line in lines)
-    assert "  scored 1/4" in lines and "  scored 4/4" in lines
-    assert phases == ["loading the tuner ...", f"loading the frames of {tiny_session / 's'} ...",
-                      "choosing among the best candidates on the 2 held-out frame(s) ...",
-                      "scoring the base and the chosen parameters with every metric on train and holdout ...",
-                      "the safety sweep: the base and each candidate about to win on synthetic branches from inside "
-                      "the minimum range out to 3 m ...",
-                      f"writing the report and its plots into {rep} ..."]
+    assert "  scored 1/6" in lines and "  scored 6/6" in lines
+    assert phases[:4] == ["loading the tuner ...",
+                          "ranging every candidate with the default ranging settings (no --config, no "
+                          "UAV_DEPTH_CONFIG) ...",
+                          f"loading the frames of {tiny_session / 's'} ...",
+                          "1 training, 2 validation and 1 test frame(s): the search trains, the choice chooses, the "
+                          "gate judges on the test frames alone ..."]
+    assert phases[4] == "choosing among the best candidates on the 2 validation frame(s) ..."
+    assert phases[5] == "scoring the base and the chosen parameters with every metric on train, validation, test ..."
+    assert phases[-1] == f"writing the report and its plots into {rep} ..."
+    if any(p.startswith("the safety sweep: ") for p in phases):     # the chosen beat the base on its frames
+        assert any(p.startswith("rendering the safety sweep at 256x192") for p in phases)
+        assert "  safety sweep: frames rendered 84/84" in lines
+        assert "  safety sweep: the base, frames read 84/84" in lines
 
 
 def test_tune_no_progress_silences_its_phases(tiny_session, tmp_path):
     _, lines = on_a_terminal(["tune", tiny_session / "s", "--base", tiny_session / "base.yaml", "--optimizer",
                               "random", "--population", "2", "--generations", "1", "--holdout", "none", "--workers",
-                              "1", "--store", tmp_path / "store.sqlite", "--no-progress", "--safety-sweep", "quick"])
+                              "1", "--store", tmp_path / "store.sqlite", "--no-progress", "--safety-sweep", "quick",
+                              "--sweep-cache", tmp_path / "cache"])
     assert [line for line in lines if line.endswith(" ...")] == []

@@ -43,3 +43,18 @@ def tiny_session(tmp_path_factory):
     write_session(root / "s", 4, 5, SceneConfig(**TINY))
     save_params(TINY_BASE, root / "base.yaml")
     return root
+
+
+@pytest.fixture(scope="session", autouse=True)
+def sweep_cache(tmp_path_factory):
+    """tune keeps its rendered safety sweep in the user's cache ($XDG_CACHE_HOME); the tests' runs (and their
+    subprocesses) share one of their own, so a sweep at the tiny rig is rendered once per test session."""
+    import os
+
+    saved = os.environ.get("XDG_CACHE_HOME")
+    os.environ["XDG_CACHE_HOME"] = str(tmp_path_factory.mktemp("cache"))
+    yield os.environ["XDG_CACHE_HOME"]
+    if saved is None:
+        os.environ.pop("XDG_CACHE_HOME", None)
+    else:
+        os.environ["XDG_CACHE_HOME"] = saved

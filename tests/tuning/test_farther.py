@@ -1,5 +1,5 @@
 """The safety weighting: a branch read farther than the truth costs more than one read as much nearer, in the
-flown fitness and in the gate that decides whether --out is written (issue 12)."""
+flown fitness and in the gate that decides whether --out is written."""
 
 import json
 import math
@@ -12,7 +12,8 @@ import pytest
 from uav_depth.core.params import load_params, read_provenance, save_params
 from uav_depth.sim.scene import SceneConfig, write_session
 from uav_depth.tuning import metrics
-from uav_depth.tuning.frames import FrameSet, load_split
+from uav_depth.tuning.frames import FrameSet
+from uav_depth.tuning.split import load_split
 from uav_depth.tuning.objective import FITNESS, OK, Evaluation, evaluate
 from uav_depth.tuning.robust import farther_check
 
@@ -63,7 +64,7 @@ def test_farther_check_refuses_more_farther_frames_than_the_base_and_passes_as_m
     assert (same.base, same.tuned, same.frames, same.reason) == (1, 1, 3, None)
     worse = farther_check([_ev(0, 0), _ev(1)], [_ev(1, 0), _ev(1)])
     assert (worse.base, worse.tuned, worse.frames) == (1, 2, 3)
-    assert worse.reason == ("the tuned parameters read 2 of 3 held-out frame(s) farther than the branch truth by "
+    assert worse.reason == ("the tuned parameters read 2 of 3 test frame(s) farther than the branch truth by "
                             "more than 2 %, the base 1")
     # frames without branch truth do not count; a candidate that failed there cannot pass
     assert farther_check([Evaluation(OK, 0.0, frame_metrics=({"mae": 1.0},))], [_ev()]).reason is None
@@ -81,7 +82,7 @@ def test_farther_check_refuses_a_larger_branch_error_at_the_same_farther_count()
     base = [_evs((0, 1.0), (0, 2.0))]
     worse = farther_check(base, [_evs((0, 100.0), (0, 2.0))])
     assert (worse.base, worse.tuned, worse.base_safe, worse.tuned_safe) == (0, 0, 1.5, 51.0)
-    assert worse.reason == ("the tuned parameters' safety-weighted branch-distance error on the 2 held-out frame(s) "
+    assert worse.reason == ("the tuned parameters' safety-weighted branch-distance error on the 2 test frame(s) "
                             "with branch truth is 51 %, the base's 1.5 %")
     assert farther_check(base, [_evs((0, 0.5), (0, 2.5))]).reason is None          # 1.5 against 1.5: equal passes
     assert farther_check(base, [_evs((0, 0.5), (0, 1.0))]).tuned_safe == 0.75
@@ -101,18 +102,19 @@ def _set_truth(session, key, truth_m):
     meta.write_text(json.dumps(doc))
 
 
-def test_tune_refuses_a_candidate_that_reads_more_held_out_frames_farther_than_its_base(tmp_path):
+def test_tune_refuses_a_candidate_that_reads_more_test_frames_farther_than_its_base(tmp_path):
     """A real tune twice on the same frames and seed. The paper's mse fitness never looks at the branch truth, so
-    both runs choose the same candidate; between them the truth of a held-out frame the candidate ranges (and the
-    base does not) is moved 5 % nearer than the candidate's reading, the other's to the farther of the two
-    readings. The second run must name the farther count
-    in its one-line refusal, keep the candidate beside --out, and --force must still write it."""
+    both runs choose the same candidate (on the training frames: no validation frame); between them the truth of
+    a test frame the candidate ranges (and the base does not) is moved 5 % nearer than the candidate's reading,
+    the other's to the farther of the two readings. The second run must name the farther count in its one-line
+    refusal, keep the candidate beside --out, and --force must still write it."""
     root = tmp_path / "log"
     write_session(root / "s", 4, 5, SceneConfig(**TINY), fixed_distance=0.7)   # branches the tiny frames range
     save_params(TINY_BASE, tmp_path / "base.yaml")
     out = tmp_path / "p.yaml"
     args = ["tune", root / "s", "--base", tmp_path / "base.yaml", "--optimizer", "ga", "--metric", "mse",
-            "--population", "8", "--generations", "4", "--seed", "2", "--holdout", "s/000002,s/000003",
+            "--population", "8", "--generations", "4", "--seed", "2", "--test", "s/000002,s/000003",
+            "--holdout", "none",
             "--workers", "1", "--no-progress", "--out", out, "--safety-sweep", "none"]   # the held-out rule alone
     first = cli(*args, "--store", tmp_path / "a.sqlite")
     assert "farther" not in first.stderr, first.stderr     # the truths as rendered: no farther reading
@@ -124,7 +126,7 @@ def test_tune_refuses_a_candidate_that_reads_more_held_out_frames_farther_than_i
     tuned_m = [f["branch_m"] for f in evaluate(chosen, held, FITNESS["mse"], full=True,
                                                convention="bench").frame_metrics]
     pick = [i for i, (b, t) in enumerate(zip(base_m, tuned_m)) if math.isfinite(t) and math.isnan(b)]
-    assert pick, (base_m, tuned_m)        # the candidate ranges a held-out branch the base does not
+    assert pick, (base_m, tuned_m)        # the candidate ranges a test branch the base does not
     for i, frame in enumerate(held.frames):     # the picked one 5 % nearer than the candidate read it; the
         readings = [d for d in (base_m[i], tuned_m[i]) if math.isfinite(d)]    # others where neither is farther
         _set_truth(root / "s", frame.key, tuned_m[i] / 1.05 if i == pick[0] else max(readings, default=1.0))
@@ -133,7 +135,7 @@ def test_tune_refuses_a_candidate_that_reads_more_held_out_frames_farther_than_i
     second = cli(*args, "--store", tmp_path / "b.sqlite")
     assert second.returncode == 1, second.stdout
     assert second.stderr.strip().count("\n") == 0
-    assert (f"the tuned parameters read 1 of {len(held)} held-out frame(s) farther than the branch truth by more "
+    assert (f"the tuned parameters read 1 of {len(held)} test frame(s) farther than the branch truth by more "
             "than 2 %, the base 0; the candidate is in") in second.stderr
     assert not out.exists() and load_params(tmp_path / "p.rejected.yaml") == chosen
     forced = cli(*args, "--store", tmp_path / "c.sqlite", "--force")

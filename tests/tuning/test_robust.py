@@ -46,7 +46,7 @@ def test_a_candidate_on_a_cliff_loses_to_the_next_one():
         if sg["p2"] == 2400:
             return 2.0
         if sg["p2"] in (5000,):
-            return 1.0 if frameset == "holdout" else 1.2
+            return 1.0 if frameset == "validation" else 1.2
         if sg["p2"] == 5500:
             return 9.0
         return 1.5 if sg["p2"] >= 2700 and sg["p2"] <= 3300 else 1.9
@@ -58,7 +58,7 @@ def test_a_candidate_on_a_cliff_loses_to_the_next_one():
     assert sel.chosen["params"]["sgbm"]["p2"] == 3000
     rejected = sel.rows[1]
     assert "fragile: sgbm.p2+500" in rejected["fragile"] and rejected["nudges"]["sgbm.p2+500"] == 9.0
-    assert ("train", 5500) in ex.calls and ("holdout", 5500) not in ex.calls   # nudges on the training frames
+    assert ("train", 5500) in ex.calls and ("validation", 5500) not in ex.calls   # nudges on the training frames
 
 
 def test_a_screened_candidate_is_set_aside_for_the_next_one_that_beats_the_base():
@@ -94,7 +94,7 @@ def test_each_candidate_set_aside_is_replaced_by_the_next_best_in_training():
                  screen=lambda params: "unsafe: farther" if params["sgbm"]["p2"] in refused else None)
     assert sel.chosen["params"]["sgbm"]["p2"] == 3000 and sel.beats_base
     assert [r["params"]["sgbm"]["p2"] for r in sel.rows] == [2400, 5000, 4000, 3000, 2600]
-    assert ("holdout", 2600) in ex.calls       # replaced the second refusal, ranked below 3000
+    assert ("validation", 2600) in ex.calls       # replaced the second refusal, ranked below 3000
     # Without replacements (a list of two) every candidate that beats the base is refused: the base stays.
     sel = select(Scripted(fn), "flown", DEFAULT_PARAMS, 2.0, cands[:2], True, top=2,
                  screen=lambda params: "unsafe: farther" if params["sgbm"]["p2"] in refused else None)
@@ -104,7 +104,7 @@ def test_each_candidate_set_aside_is_replaced_by_the_next_best_in_training():
     ex = Scripted(lambda frameset, sg: {20000: 0.5}.get(sg["p2"]) or fn(frameset, sg))
     sel = select(ex, "flown", DEFAULT_PARAMS, 2.0, [(cliff, 0.5)] + cands[2:], True, top=1)
     assert sel.chosen["params"]["sgbm"]["p2"] == 3000
-    assert ("holdout", 2600) not in ex.calls
+    assert ("validation", 2600) not in ex.calls
 
 
 def test_nudges_step_each_key_and_stay_on_the_schema():
@@ -131,24 +131,24 @@ def test_the_block_size_nudge_keeps_p1_and_p2_per_block_pixel():
     assert dict(nudges(p, ("sgbm.uniqueness_ratio",)))["sgbm.uniqueness_ratio+1"].sgbm.p1 == 600
 
 
-def test_cross_select_takes_the_fold_winner_with_the_largest_gain_on_its_own_held_out_sessions():
+def test_cross_select_takes_the_fold_winner_with_the_largest_gain_on_its_own_validation_sessions():
     # p2 3000 won fold 0 narrowly (1.9 against the base's 2.0) and scores superbly on folds 1-2, which it trained
     # on; p2 4000 won fold 1 by 40 % (1.2). The mean over the folds would take 3000 (0.97 against 1.37): it
     # rewards fitting the training sessions. Only a winner's own fold is clean: 4000 wins.
     table = {2400: (2.0, 2.0, 2.0), 3000: (1.9, 0.5, 0.5), 4000: (1.5, 1.2, 1.4), 5000: (0.1, 0.1, 2.5)}
-    ex = Scripted(lambda fs, sg: table[sg["p2"]][{"holdout": 0, "holdout1": 1, "holdout2": 2, "holdout3": 2}.get(fs, 0)])
+    ex = Scripted(lambda fs, sg: table[sg["p2"]][{"validation": 0, "validation1": 1, "validation2": 2, "validation3": 2}.get(fs, 0)])
 
     class Sel:
         def __init__(self, p2, fold):
-            self.base = {"params": DEFAULT_PARAMS.to_dict(), "train": 2.0, "holdout": 2.0}
-            self.chosen = {"params": _with(600, p2), "train": 1.0, "holdout": table[p2][min(fold, 2)]}
+            self.base = {"params": DEFAULT_PARAMS.to_dict(), "train": 2.0, "validation": 2.0}
+            self.chosen = {"params": _with(600, p2), "train": 1.0, "validation": table[p2][min(fold, 2)]}
             self.winner, self.beats_base = 1, True
     lost = Sel(5000, 3)
     lost.beats_base = False        # it lost on its own fold: never pooled, whatever it scores elsewhere
     cross = cross_select(ex, "flown", DEFAULT_PARAMS, [Sel(3000, 0), Sel(4000, 1), Sel(4000, 2), lost],
-                         ["holdout", "holdout1", "holdout2", "holdout3"])
+                         ["validation", "validation1", "validation2", "validation3"])
     assert len(cross.pool) == 2 and cross.pool[cross.winner]["params"]["sgbm"]["p2"] == 4000
-    assert cross.pool[0]["holdout"] == [1.9, 0.5, 0.5, 0.5]
+    assert cross.pool[0]["validation"] == [1.9, 0.5, 0.5, 0.5]
     assert cross.pool[0]["own_gain"] == pytest.approx(0.05) and cross.pool[1]["own_gain"] == pytest.approx(0.4)
     assert cross.pool[0]["mean"] < cross.pool[1]["mean"]        # the mean, reported, would have taken the other
     assert cross.cv_tuned == pytest.approx((1.9 + 1.2 + 1.4 + 2.5) / 4) and cross.cv_base == 2.0
@@ -164,37 +164,42 @@ def test_folds_are_auto_where_sessions_are_few_and_checked():
 
 
 @pytest.fixture(scope="module")
-def three_sessions(tmp_path_factory):
+def four_sessions(tmp_path_factory):
     from uav_depth.core.params import save_params
 
     root = tmp_path_factory.mktemp("folds")
-    for i, name in enumerate(("a", "b", "c")):
+    for i, name in enumerate(("a", "b", "c", "d")):
         write_session(root / "log" / name, 2, 11 + i, SceneConfig(**TINY))
     save_params(TINY_BASE, root / "base.yaml")
     return root
 
 
-def test_tune_k_fold_by_session_searches_each_fold_and_reports_train_vs_held_out(three_sessions, tmp_path):
-    root = three_sessions
+def test_tune_k_fold_by_session_searches_each_fold_and_reports_train_vs_validation(four_sessions, tmp_path):
+    root = four_sessions
     proc = subprocess.run([sys.executable, "-m", "uav_depth.cli.main", "tune", root / "log", "--base",
                            root / "base.yaml", "--optimizer", "random", "--population", "4", "--generations", "1",
                            "--workers", "1", "--report", tmp_path / "rep", "--out", tmp_path / "p.yaml",
-                           "--no-progress", "--force"], capture_output=True, text=True, timeout=300)
+                           "--no-progress", "--force", "--safety-sweep", "none"],
+                          capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
-    assert "3-fold held-out: cross-validated" in proc.stdout
+    assert "3-fold validation (chosen on it): " in proc.stdout and "test (2, unseen by the choice)" in proc.stdout
     summary = json.loads((tmp_path / "rep" / "summary.json").read_text())
+    assert summary["frames"]["test"] == ["d/000000", "d/000001"]      # set aside before the folds
     folds = summary["selection"]["folds"]
-    assert [f["holdout_frames"] for f in folds] == [["a/000000", "a/000001"], ["b/000000", "b/000001"],
-                                                    ["c/000000", "c/000001"]]
+    assert [f["validation_frames"] for f in folds] == [["a/000000", "a/000001"], ["b/000000", "b/000001"],
+                                                       ["c/000000", "c/000001"]]
     for f in folds:
-        assert not set(f["train_frames"]) & set(f["holdout_frames"]) and len(f["train_frames"]) == 4
-        for key in ("base_train", "winner_train", "base_holdout", "winner_holdout"):
+        assert not set(f["train_frames"]) & set(f["validation_frames"]) and len(f["train_frames"]) == 4
+        assert not set(f["train_frames"]) & set(summary["frames"]["test"])
+        for key in ("base_train", "winner_train", "base_validation", "winner_validation"):
             assert isinstance(f[key], float)
     cands = summary["selection"]["candidates"]
     for row in cands[1:]:
-        assert row["holdout"] == pytest.approx(sum(row["holdout_per_fold"]) / 3)
-    assert cands[0]["holdout"] == pytest.approx(sum(f["base_holdout"] for f in folds) / 3)
+        assert row["validation"] == pytest.approx(sum(row["validation_per_fold"]) / 3)
+    assert cands[0]["validation"] == pytest.approx(sum(f["base_validation"] for f in folds) / 3)
+    assert summary["gate"]["on"] == "test" and summary["gate"]["frames"] == 2
     studies = {s.study_name: s.n_trials for s in optuna.get_all_study_summaries(storage_url(tmp_path / "rep" /
                                                                                             "store.sqlite"))}
     assert set(studies) == {fold_study_name(j) for j in range(3)} and all(n >= 2 for n in studies.values())
-    assert "3-fold by session" in (tmp_path / "rep" / "table.md").read_text()
+    table = (tmp_path / "rep" / "table.md").read_text()
+    assert "3-fold by session" in table and "Gate, on the 2 test frame(s)" in table
