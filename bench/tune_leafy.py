@@ -137,6 +137,52 @@ def add_real(data: Path, work: Path, train_dir: Path) -> tuple[list[str], list[s
     return list(TRAIN), [s for s in scenes if s not in TRAIN]
 
 
+def print_tune(summary: dict, proc, args, tune_s: float) -> None:
+    """What the tune chose, its gate's figures on the test frames and each fold's train and validation values."""
+    sel, gate = summary["selection"], summary["gate"]
+    print(proc.stdout.strip().splitlines()[0])
+    refused = [ln for ln in proc.stdout.splitlines() + proc.stderr.splitlines() if "--force" in ln]
+    if refused:
+        print("gate (overridden by --force here): " + refused[0].strip())
+    print(f"tuned on {args.train} leafy scenes ({TRAIN_FROM}..{TRAIN_FROM + args.train - 1}) in {tune_s:.0f} s, "
+          f"{args.population} x {args.generations} per fold, {len(sel.get('folds') or [1])} fold(s); gate: "
+          f"{'beats' if gate['beats_base'] else 'does NOT beat'} the base on the {gate['frames']} {gate['on']} "
+          f"frame(s); chosen sgbm {summary['chosen']['params']['sgbm']}")
+    far = gate["farther"]
+    print(f"  gate's farther > 2 % count on the {gate['on']} frames: base {far.get('base')} -> tuned "
+          f"{far.get('tuned')} of {far.get('frames')}")
+    sweep = gate.get("safety_sweep")
+    if sweep:
+        print(f"  safety sweep ({sweep['frames']} synthetic near-sweep frames at the log's rig): farther > 2 % base "
+              f"{sweep['base']} -> tuned {sweep['tuned']}")
+    for f in sel.get("folds") or []:
+        print(f"  fold {f['fold']}: {args.metric} train {f['base_train']:.3f} -> {f['winner_train']:.3f}, "
+              f"validation {f['base_validation']:.3f} -> {f['winner_validation']:.3f}")
+
+
+def print_measured(args, out: Path, real_report) -> None:
+    """The flight file and the tuned one on the leafy suite's scenes (and the real pairs) as the daemon flies."""
+    rows = {"flight file": measure(FLIGHT_FILE, args.scenes), "tuned flight file": measure(out, args.scenes)}
+    for spec in args.also:
+        label, _, path = spec.partition(":")
+        rows[label] = measure(Path(path), args.scenes)
+    print(f"\nleafy suite scenes 0..{args.scenes - 1} (never trained on), as the daemon flies and reports:")
+    print(f"{'params':18s} {'mean err (miss=100%)':>20s} {'safety-weighted':>15s} {'median |e|':>10s} "
+          f"{'mean |e|':>9s} {'no meas':>7s} {'farther>2%':>10s} {'farther>5%':>10s}")
+    for name, r in rows.items():
+        print(f"{name:18s} {r['mean_branch_err_pct']:19.2f}% {r['mean_safe_err_pct']:14.2f}% "
+              f"{fmt_pct(r['median_abs_err']):>10s} {fmt_pct(r['mean_abs_err']):>9s} {r['no_measurement']:7d} "
+              f"{r['farther_2pct']:10d} {r['farther_5pct']:10d}")
+    if args.real is not None:
+        print(f"\nreal pairs {', '.join(real_report)} (never trained on), as the daemon flies, against the ranging "
+              "on the ground truth:")
+        print(f"{'params':18s} {'mean |e|':>9s} {'within 2%':>9s} {'farther>2%':>10s} {'no meas':>7s} {'worst':>8s}")
+        for name, path in (("flight file", FLIGHT_FILE), ("tuned flight file", out)):
+            r = measure_real(args.real, path, real_report)
+            print(f"{name:18s} {fmt_pct(r['mean_abs_err']):>9s} {r['within_2pct']:>6d}/{len(real_report)} "
+                  f"{r['farther_2pct']:10d} {r['no_measurement']:7d} {fmt_pct(r['worst']):>8s}")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", default="/tmp/tune_leafy")
@@ -160,6 +206,7 @@ def main() -> int:
     work = Path(args.work)
     sessions = write_sessions(work / "train", args.train)
     held: list[str] = []
+    real_report = None
     if args.real is not None or args.sweep_sessions:
         leafy = [f"leafy{i}" for i in range(TRAIN_FROM, TRAIN_FROM + args.train)]
         held = leafy[len(leafy) - len(leafy) // 3:]
@@ -179,50 +226,8 @@ def main() -> int:
                            "--no-progress", "--force", *holdout, *args.tune_args], capture_output=True, text=True)
     if proc.returncode != 0:
         raise SystemExit(f"uav-depth tune failed ({proc.returncode}): {proc.stderr.strip()}")
-    tune_s = time.perf_counter() - t0
-    summary = json.loads((report / "summary.json").read_text())
-    sel = summary["selection"]
-    print(proc.stdout.strip().splitlines()[0])
-    refused = [ln for ln in proc.stdout.splitlines() + proc.stderr.splitlines() if "--force" in ln]
-    if refused:
-        print("gate (overridden by --force here): " + refused[0].strip())
-    print(f"tuned on {args.train} leafy scenes ({TRAIN_FROM}..{TRAIN_FROM + args.train - 1}) in {tune_s:.0f} s, "
-          f"{args.population} x {args.generations} per fold, {len(sel.get('folds') or [1])} fold(s); gate: "
-          f"{'beats' if sel['beats_base'] else 'does NOT beat'} the base held out; chosen sgbm "
-          f"{summary['chosen']['params']['sgbm']}")
-    far = sel.get("farther") or {}
-    print(f"  gate's farther > 2 % count on frames the choice did not train on: base {far.get('base')} -> tuned "
-          f"{far.get('tuned')} of {far.get('frames')}" + ("" if "cross_validated" not in far else
-                                                        "; cross-validated (each fold's winner on its own held-out) "
-                                                        f"{far['cross_validated']['base']} -> "
-                                                        f"{far['cross_validated']['tuned']} of "
-                                                        f"{far['cross_validated']['frames']}"))
-    sweep = far.get("safety_sweep")
-    if sweep:
-        print(f"  safety sweep ({sweep['frames']} synthetic near-sweep frames at the log's rig): farther > 2 % base "
-              f"{sweep['base']} -> tuned {sweep['tuned']}")
-    for f in sel.get("folds") or []:
-        print(f"  fold {f['fold']}: {args.metric} train {f['base_train']:.3f} -> {f['winner_train']:.3f}, "
-              f"held-out {f['base_holdout']:.3f} -> {f['winner_holdout']:.3f}")
-    rows = {"flight file": measure(FLIGHT_FILE, args.scenes), "tuned flight file": measure(out, args.scenes)}
-    for spec in args.also:
-        label, _, path = spec.partition(":")
-        rows[label] = measure(Path(path), args.scenes)
-    print(f"\nleafy suite scenes 0..{args.scenes - 1} (never trained on), as the daemon flies and reports:")
-    print(f"{'params':18s} {'mean err (miss=100%)':>20s} {'safety-weighted':>15s} {'median |e|':>10s} "
-          f"{'mean |e|':>9s} {'no meas':>7s} {'farther>2%':>10s} {'farther>5%':>10s}")
-    for name, r in rows.items():
-        print(f"{name:18s} {r['mean_branch_err_pct']:19.2f}% {r['mean_safe_err_pct']:14.2f}% "
-              f"{fmt_pct(r['median_abs_err']):>10s} {fmt_pct(r['mean_abs_err']):>9s} {r['no_measurement']:7d} "
-              f"{r['farther_2pct']:10d} {r['farther_5pct']:10d}")
-    if args.real is not None:
-        print(f"\nreal pairs {', '.join(real_report)} (never trained on), as the daemon flies, against the ranging "
-              "on the ground truth:")
-        print(f"{'params':18s} {'mean |e|':>9s} {'within 2%':>9s} {'farther>2%':>10s} {'no meas':>7s} {'worst':>8s}")
-        for name, path in (("flight file", FLIGHT_FILE), ("tuned flight file", out)):
-            r = measure_real(args.real, path, real_report)
-            print(f"{name:18s} {fmt_pct(r['mean_abs_err']):>9s} {r['within_2pct']:>6d}/{len(real_report)} "
-                  f"{r['farther_2pct']:10d} {r['no_measurement']:7d} {fmt_pct(r['worst']):>8s}")
+    print_tune(json.loads((report / "summary.json").read_text()), proc, args, time.perf_counter() - t0)
+    print_measured(args, out, real_report)
     print(f"\ntotal {time.perf_counter() - t0:.0f} s")
     return 0
 

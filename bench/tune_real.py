@@ -200,10 +200,69 @@ def synthetic_flight(work: Path, root: Path, population: int, generations: int) 
     summary, wall, _ = tune(syn / "train", work / "syn-flight.yaml", "--base", flight, "--holdout", "0.5",
                             "--population", str(population), "--generations", str(generations))
     base, tuned = evaluate(syn / "test", flight), evaluate(syn / "test", work / "syn-flight.yaml")
-    gate = "beat" if summary["selection"]["beats_base"] else "did NOT beat"
-    return [f"synthetic flight file: tuned on 4 frames ({wall:.0f} s; {gate} its base on the 2 held-out of them); "
+    gate = "beat" if summary["gate"]["beats_base"] else "did NOT beat"
+    return [f"synthetic flight file: tuned on 4 frames ({wall:.0f} s; {gate} its base on the "
+            f"{summary['gate']['frames']} {summary['gate']['on']} frame(s) of them); "
             f"4 other frames: branch error {base['mean']['branch_err_pct']:.2f}% -> {tuned['mean']['branch_err_pct']:.2f}%, "
             f"mae {base['mean']['mae']:.3f} -> {tuned['mean']['mae']:.3f} px"]
+
+
+def _note(name: str, summary: dict, wall: float, code: int) -> str:
+    """One line on a tune: its time, failures, folds, the choice's and the gate's figures and what it chose."""
+    sel, cmp, gate = summary["selection"], summary["comparison"], summary["gate"]
+    chosen, base = sel["candidates"][sel["winner"]], sel["candidates"][0]
+    folds = sel.get("folds") or []
+    failed = sum(r["failed"] for r in summary["runs"])
+    return (f"{name}: {wall:.0f} s, {summary['evaluated']} evaluated in fold 1 ({failed} of its "
+            f"{sum(r['proposals'] for r in summary['runs'])} proposals failed), {len(folds)} fold(s); "
+            f"chosen on {sel['on']} ({'beats' if sel['beats_base'] else 'does NOT beat'} the base there"
+            f"{'' if code == 0 else ', the gate would refuse it'}); its own metric "
+            f"{summary['config']['metric']} train {base['train']:.4g} -> {chosen['train']:.4g}, validation "
+            f"{base['validation']:.4g} -> {chosen['validation']:.4g}, {gate['on']} {gate['base']:.4g} -> "
+            f"{gate['tuned']:.4g}"
+            + "".join(f"; fold {f['fold']} train {f['base_train']:.4g}->{f['winner_train']:.4g} validation "
+                      f"{f['base_validation']:.4g}->{f['winner_validation']:.4g}" for f in folds)
+            + f"; chosen sgbm {summary['chosen']['params']['sgbm']}"
+            + f"; train mae {cmp['train']['metrics'].get('mae', {}).get('tuned', float('nan')):.3f}")
+
+
+def tuned_rows(args, work: Path, train: Path, test: Path, budget: list[str], t_start: float):
+    """The manual baseline and each tune's file on the held-out scenes, and a note per tune."""
+    rows: dict[str, dict] = {"manual baseline": scores(test, None, train)}
+    notes = []
+    runs = [("tune (default: tpe, flown)", work / "tuned.yaml", ()),
+            ("ga-paper (faithful: mse, WLS map)", work / "ga-paper.yaml", ("--optimizer", "ga-paper"))]
+    runs = [r for r, skip in zip(runs, (args.skip_default, args.skip_ga_paper)) if not skip]
+    for spec in args.row:
+        label, _, extra = spec.partition(":")
+        runs.append((label, work / f"row-{len(runs)}.yaml", tuple(extra.split())))
+    for name, out, extra in runs:
+        summary, wall, code = tune(train, out, *budget, *extra)
+        rows[name] = scores(test, out, train)
+        print(f"  {name}: tuned and scored at {time.perf_counter() - t_start:.0f} s", flush=True)
+        notes.append(_note(name, summary, wall, code))
+    return rows, notes
+
+
+def flight_section(work: Path, root: Path, train: Path, test: Path, budget: list[str], flight_args) -> None:
+    """The flight file, tuned on the real training scenes: does the daemon's distance improve held out?"""
+    flight = root / "deploy" / "params-flight.yaml"
+    summary, wall, _ = tune(train, work / "flight-tuned.yaml", "--base", flight, *budget, *flight_args)
+    b, t = branch_errors(test, flight), branch_errors(test, work / "flight-tuned.yaml")
+    fb, ft = scores(test, flight), scores(test, work / "flight-tuned.yaml")
+    gate = summary["gate"]
+    far = gate["farther"]
+    print(f"\nflight file on real pairs ({wall:.0f} s to tune; the gate {'REFUSES' if gate['refused'] else 'writes'} "
+          f"it: {'beats' if gate['beats_base'] else 'does NOT beat'} its base on the {gate['frames']} {gate['on']} "
+          f"frames of the training scenes, farther > 2 % there {far.get('base')} -> {far.get('tuned')} of "
+          f"{far.get('frames')}); held-out ({len(b)} scenes) ranging distance as it flies vs the same ranging on "
+          "ground truth:")
+    print(f"  flight file:       {branch_line(b)}")
+    print(f"  tuned flight file: {branch_line(t)}")
+    print("  per scene (base -> tuned, signed %): " + ", ".join(
+        f"{i.split('/')[0]} {_pct(x)} -> {_pct(y)}" for i, x, y in zip(fb["ids"], b, t)))
+    print(f"  mae in its region {fb['mean']['mae']:.3f} -> {ft['mean']['mae']:.3f} px; chosen sgbm "
+          f"{summary['chosen']['params']['sgbm']}")
 
 
 def main() -> int:
@@ -234,64 +293,18 @@ def main() -> int:
     print(machine_line())
     print(f"train (tune): {', '.join(sorted(TRAIN))}; held-out (report): "
           f"{', '.join(s for s in scenes if s not in TRAIN)}; budget {args.population} x {args.generations}")
-    rows: dict[str, dict] = {"manual baseline": scores(test, None, train)}
-    notes = []
-    runs = [("tune (default: tpe, flown)", work / "tuned.yaml", ()),
-            ("ga-paper (faithful: mse, WLS map)", work / "ga-paper.yaml", ("--optimizer", "ga-paper"))]
-    runs = [r for r, skip in zip(runs, (args.skip_default, args.skip_ga_paper)) if not skip]
-    for spec in args.row:
-        label, _, extra = spec.partition(":")
-        runs.append((label, work / f"row-{len(runs)}.yaml", tuple(extra.split())))
-    for name, out, extra in runs:
-        summary, wall, code = tune(train, out, *budget, *extra)
-        rows[name] = scores(test, out, train)
-        print(f"  {name}: tuned and scored at {time.perf_counter() - t_start:.0f} s", flush=True)
-        sel = summary["selection"]
-        cmp = summary["comparison"]
-        sel["base"] = sel["candidates"][0]
-        folds = sel.get("folds") or []
-        failed = sum(r["failed"] for r in summary["runs"])
-        notes.append(f"{name}: {wall:.0f} s, {summary['evaluated']} evaluated in fold 1 ({failed} of its "
-                     f"{sum(r['proposals'] for r in summary['runs'])} proposals failed), {len(folds)} fold(s); "
-                     f"chosen on {sel['on']} ({'beats' if sel['beats_base'] else 'does NOT beat'} the base there"
-                     f"{'' if code == 0 else ', the gate would refuse it'}); its own metric "
-                     f"{summary['config']['metric']} train {sel['base']['train']:.4g} -> "
-                     f"{sel['candidates'][sel['winner']]['train']:.4g}, held-out {sel['base']['holdout']:.4g} -> "
-                     f"{sel['candidates'][sel['winner']]['holdout']:.4g}"
-                     + "".join(f"; fold {f['fold']} train {f['base_train']:.4g}->{f['winner_train']:.4g} held-out "
-                               f"{f['base_holdout']:.4g}->{f['winner_holdout']:.4g}" for f in folds)
-                     + f"; chosen sgbm {summary['chosen']['params']['sgbm']}"
-                     + f"; train mae {cmp['train']['metrics'].get('mae', {}).get('tuned', float('nan')):.3f}")
+    rows, notes = tuned_rows(args, work, train, test, budget, t_start)
     print("\nTrain (6 tuning scenes) and held-out (11 other scenes), benchmark convention, the map the daemon "
           "ranges on, whole frame:\n")
     print("\n".join(table(rows, ("mae", "bad2"))))
     print("\ndensity (held-out mean): " + ", ".join(f"{n} {d['mean']['density']:.3f}" for n, d in rows.items()))
     for n in notes:
         print("- " + n)
-    # The flight file, tuned on the real training scenes: does the daemon's distance improve held out?
-    if args.skip_flight:
-        print(f"\ntotal {time.perf_counter() - t_start:.0f} s")
-        return 0
-    flight = root / "deploy" / "params-flight.yaml"
-    summary, wall, _ = tune(train, work / "flight-tuned.yaml", "--base", flight, *budget, *args.flight_args)
-    b, t = branch_errors(test, flight), branch_errors(test, work / "flight-tuned.yaml")
-    fb, ft = scores(test, flight), scores(test, work / "flight-tuned.yaml")
-    far = summary["selection"].get("farther") or {}
-    writes = summary["selection"]["beats_base"] and not far.get("refused")
-    print(f"\nflight file on real pairs ({wall:.0f} s to tune; the gate {'writes' if writes else 'REFUSES'} it: "
-          f"{'beats' if summary['selection']['beats_base'] else 'does NOT beat'} its base on the held-out sessions "
-          f"of the training scenes, farther > 2 % there {far.get('base')} -> {far.get('tuned')} of "
-          f"{far.get('frames')}); held-out ({len(b)} scenes) ranging "
-          f"distance as it flies vs the same ranging on ground truth:")
-    print(f"  flight file:       {branch_line(b)}")
-    print(f"  tuned flight file: {branch_line(t)}")
-    print("  per scene (base -> tuned, signed %): " + ", ".join(
-        f"{i.split('/')[0]} {_pct(x)} -> {_pct(y)}" for i, x, y in zip(fb["ids"], b, t)))
-    print(f"  mae in its region {fb['mean']['mae']:.3f} -> {ft['mean']['mae']:.3f} px; chosen sgbm "
-          f"{summary['chosen']['params']['sgbm']}")
-    if not args.skip_synthetic:
-        for line in synthetic_flight(work, root, args.population, args.generations):
-            print(line)
+    if not args.skip_flight:
+        flight_section(work, root, train, test, budget, args.flight_args)
+        if not args.skip_synthetic:
+            for line in synthetic_flight(work, root, args.population, args.generations):
+                print(line)
     print(f"\ntotal {time.perf_counter() - t_start:.0f} s")
     return 0
 

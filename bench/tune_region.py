@@ -30,99 +30,112 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import tune_real  # noqa: E402  (the sessions and the split)
 
 
+from uav_depth.cli.benchmark import machine_line  # noqa: E402
+from uav_depth.core.disparity import flight_pipeline  # noqa: E402
+from uav_depth.core.params import DEFAULT_PARAMS  # noqa: E402
+from uav_depth.core.session import iter_frames  # noqa: E402
+from uav_depth.daemon.ranging import resolve_roi  # noqa: E402
+from uav_depth.tuning.frames import load_frame  # noqa: E402
+from uav_depth.tuning.objective import BRANCH_PX_PER_PCT, _branch, bench, flown_map, scored_box  # noqa: E402
+from uav_depth.tuning.space import FLOWN_KEYS, SchemaSpace, build  # noqa: E402
+
+
+def scene(f) -> str:
+    return f.key.split("/")[0]
+
+
+def region_box(f):
+    h, w = f.left.shape[:2]
+    return resolve_roi(f.roi, w, h)
+
+
+def scores(params, on):
+    """Per frame of ``on``: (ranging-region MAE, whole-frame MAE, whole-frame bad-2, branch term), or None
+    when the candidate fails (a warning, or no measured pixel)."""
+    pipeline = flight_pipeline(params)
+    out = {}
+    for f in on:
+        res = pipeline.run(f.left, f.right)
+        if res.warning is not None or not np.isfinite(res.measured).any():
+            return None
+        m = flown_map(res)
+        whole = bench(f, m, scored_box(params, f.left.shape))
+        out[f.key] = (bench(f, m, region_box(f))["mae"], whole["mae"], whole["bad2"],
+                      BRANCH_PX_PER_PCT * _branch(f, res, params) if f.has_branch else 0.0)
+    return out
+
+
+def fitness(region: str, params, train) -> float:
+    """The flown fitness on the training scenes, the map scored in ``region``: "matched" is ``FITNESS["flown"]``
+    as it is now (whole-frame MAE + branch term; tests/tuning/test_study.py checks that sum), "ranging" the
+    map scored in the ranging region alone."""
+    got = scores(params, train)
+    if got is None:
+        return float("inf")
+    return float(np.mean([v[0 if region == "ranging" else 1] + v[3] for v in got.values()]))
+
+
+def search(space, region: str, seed: int, trials: int, train):
+    """TPE over ``space`` from the manual baseline, ``trials`` proposals: the best parameters."""
+    import optuna
+
+    names = [f"g{i}" for i in range(space.size)]
+    study = optuna.create_study(sampler=optuna.samplers.TPESampler(seed=seed, multivariate=True))
+    study.enqueue_trial(dict(zip(names, map(float, space.encode(DEFAULT_PARAMS)))))
+    dist = {k: optuna.distributions.FloatDistribution(0.0, 1.0) for k in names}
+    for _ in range(trials):
+        trial = study.ask(dist)
+        try:
+            value = fitness(region, build(space, [trial.params[k] for k in names], DEFAULT_PARAMS), train)
+        except Exception:  # noqa: BLE001  (a candidate the schema refuses is a failed trial)
+            value = float("inf")
+        study.tell(trial, value if np.isfinite(value) else 1e9)
+    return build(space, [study.best_trial.params[k] for k in names], DEFAULT_PARAMS)
+
+
+def row(seed: int, region: str, best, base: dict, train, test, seconds: float) -> str:
+    got = scores(best, train + test)
+
+    def change(on, i):
+        b = np.mean([base[f.key][i] for f in on])
+        return (np.mean([got[f.key][i] for f in on]) - b) / b * 100.0
+
+    worse = [scene(f) for f in test if (got[f.key][1] - base[f.key][1]) / base[f.key][1] > 0.05]
+    sg = best.sgbm
+    return (f"| {seed} | {region} | {change(train, 0):+.1f} % | {change(test, 0):+.1f} % | {change(test, 1):+.1f} % "
+            f"| {change(test, 2):+.1f} % | {len(worse)} ({', '.join(worse) or '-'}) | block {sg.block_size}, P1 "
+            f"{sg.p1}, P2 {sg.p2}, uniqueness {sg.uniqueness_ratio}, disp12 {sg.disp12_max_diff} | {seconds:.0f} |")
+
+
 def main() -> int:
+    import optuna
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", required=True, help="the middlebury2006 folder (17 scene folders)")
     ap.add_argument("--work", default=None, help="where the sessions go (default: a temporary folder)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--trials", type=int, default=160)
     args = ap.parse_args()
-
-    import optuna
-
-    from uav_depth.cli.benchmark import machine_line
-    from uav_depth.core.disparity import flight_pipeline
-    from uav_depth.core.params import DEFAULT_PARAMS
-    from uav_depth.core.session import iter_frames
-    from uav_depth.daemon.ranging import resolve_roi
-    from uav_depth.tuning.frames import load_frame
-    from uav_depth.tuning.objective import BRANCH_PX_PER_PCT, _branch, bench, flown_map, scored_box
-    from uav_depth.tuning.space import FLOWN_KEYS, SchemaSpace, build
-
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="tune_region_"))
     tune_real.make_sessions(Path(args.data), work)
     frames = [load_frame(r) for r in iter_frames(work / "sessions", require_reference=True)]
-    scene = lambda f: f.key.split("/")[0]  # noqa: E731
     train = [f for f in frames if scene(f) in tune_real.TRAIN]
     test = [f for f in frames if scene(f) not in tune_real.TRAIN]
-
-    def region_box(f):
-        h, w = f.left.shape[:2]
-        return resolve_roi(f.roi, w, h)
-
-    def scores(params, on=frames):
-        """Per frame of ``on``: (ranging-region MAE, whole-frame MAE, whole-frame bad-2, branch term), or None
-        when the candidate fails (a warning, or no measured pixel)."""
-        pipeline = flight_pipeline(params)
-        out = {}
-        for f in on:
-            res = pipeline.run(f.left, f.right)
-            if res.warning is not None or not np.isfinite(res.measured).any():
-                return None
-            m = flown_map(res)
-            whole = bench(f, m, scored_box(params, f.left.shape))
-            out[f.key] = (bench(f, m, region_box(f))["mae"], whole["mae"], whole["bad2"],
-                          BRANCH_PX_PER_PCT * _branch(f, res, params) if f.has_branch else 0.0)
-        return out
-
-    def fitness(region: str, params) -> float:
-        """The flown fitness on the training scenes, the map scored in ``region``: "matched" is
-        ``FITNESS["flown"]`` as it is now (whole-frame MAE + branch term; tests/tuning/test_study.py checks that
-        sum), "ranging" the fitness before issue 12's change."""
-        got = scores(params, train)
-        if got is None:
-            return float("inf")
-        return float(np.mean([v[0 if region == "ranging" else 1] + v[3] for v in got.values()]))
-
     print(machine_line())
     print(f"train: {', '.join(sorted(tune_real.TRAIN))}; held out: {', '.join(sorted(scene(f) for f in test))}; "
           f"TPE {args.trials} proposals per run; map scored in the ranging region (central third) or over the "
           "matched region (whole frame here)")
-    base = scores(DEFAULT_PARAMS)
+    base = scores(DEFAULT_PARAMS, frames)
     space = SchemaSpace(FLOWN_KEYS)
-    names = [f"g{i}" for i in range(space.size)]
-
-    def change(got, on, i):
-        b = np.mean([base[f.key][i] for f in on])
-        return (np.mean([got[f.key][i] for f in on]) - b) / b * 100.0
-
     print("\n| seed | map scored | train MAE, ranging region | held-out MAE, ranging region | held-out MAE, whole "
           "| held-out bad-2, whole | held-out scenes > 5 % worse (whole MAE) | chosen sgbm | s |")
     print("|---|---|---|---|---|---|---|---|---|")
     for seed in args.seeds:
         for region in ("ranging", "matched"):
             t0 = time.perf_counter()
-            study = optuna.create_study(sampler=optuna.samplers.TPESampler(seed=seed, multivariate=True))
-            study.enqueue_trial(dict(zip(names, map(float, space.encode(DEFAULT_PARAMS)))))
-            dist = {k: optuna.distributions.FloatDistribution(0.0, 1.0) for k in names}
-            for _ in range(args.trials):
-                trial = study.ask(dist)
-                try:
-                    params = build(space, [trial.params[k] for k in names], DEFAULT_PARAMS)
-                    value = fitness(region, params)
-                except Exception:  # noqa: BLE001  (a candidate the schema refuses is a failed trial)
-                    value = float("inf")
-                study.tell(trial, value if np.isfinite(value) else 1e9)
-            best = build(space, [study.best_trial.params[k] for k in names], DEFAULT_PARAMS)
-            got = scores(best)
-            worse = [scene(f) for f in test if (got[f.key][1] - base[f.key][1]) / base[f.key][1] > 0.05]
-            sg = best.sgbm
-            print(f"| {seed} | {region} | {change(got, train, 0):+.1f} % | {change(got, test, 0):+.1f} % | "
-                  f"{change(got, test, 1):+.1f} % | {change(got, test, 2):+.1f} % | {len(worse)} "
-                  f"({', '.join(worse) or '-'}) | block {sg.block_size}, P1 {sg.p1}, P2 {sg.p2}, uniqueness "
-                  f"{sg.uniqueness_ratio}, disp12 {sg.disp12_max_diff} | {time.perf_counter() - t0:.0f} |",
-                  flush=True)
+            best = search(space, region, seed, args.trials, train)
+            print(row(seed, region, best, base, train, test, time.perf_counter() - t0), flush=True)
     return 0
 
 

@@ -24,7 +24,8 @@ import numpy as np
 
 
 def load(data: str, holdout: str | None, needs):
-    from uav_depth.tuning.frames import FrameSet, load_split
+    from uav_depth.tuning.frames import FrameSet
+    from uav_depth.tuning.split import load_split
 
     if data == "motorcycle":
         import importlib.util
