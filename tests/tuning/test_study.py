@@ -242,3 +242,18 @@ def test_a_candidate_with_a_region_is_scored_inside_it(tiny_frames, metric):
     assert ev.per_frame == pytest.approx(per_frame)
     if metric != "selfsup":
         assert ev.metrics["valid"] > 0.8       # the valid fraction is of the region, too
+
+
+def test_the_flown_fitness_ranges_with_the_ranging_settings_it_is_given(tiny_frames):
+    """The flown fitness scores the pixels the ranging uses and the distance it sends: both follow the ranging
+    settings of the config that will fly, and so does the cache key of every evaluation."""
+    from uav_depth.daemon.ranging import RangingConfig
+    from uav_depth.tuning.objective import Objective, Task
+
+    strict = RangingConfig(min_confidence=0.95)
+    default = Objective({"train": tiny_frames}, "flown")(Task(TINY_BASE.to_dict(), "train", full=True))
+    stricter = Objective({"train": tiny_frames}, "flown", strict)(Task(TINY_BASE.to_dict(), "train", full=True))
+    assert default.ok and stricter.ok and default.value != stricter.value
+    assert default.metrics["density"] > stricter.metrics["density"]           # fewer confident pixels used
+    params = TINY_BASE.to_dict()
+    assert candidate_key(params, "d", "flown") != candidate_key(params, "d", "flown", strict)

@@ -257,9 +257,9 @@ def test_the_safety_sweep_runs_at_the_logs_rig_and_is_reported(tiny_session, tmp
     """A candidate that differs from its base is ranged on the quick sweep's 84 frames (``--safety-sweep quick``;
     the default is the 330-frame standard sweep, tests/sim/test_sweep.py), rendered at this log's 256x192 rig; the
     counts are printed and in summary.json. --safety-sweep none skips it. (``--holdout none``: chosen on the
-    training frames, where the best of eight candidates beats the base, so a candidate is about to win.)"""
-    args = ["tune", tiny_session / "s", "--base", tiny_session / "base.yaml", "--optimizer", "random",
-            "--population", "4", "--generations", "2", "--seed", "1", "--workers", "1", "--no-progress", "--force",
+    training frames, where this seed's GA finds candidates that beat the base, so one is about to win.)"""
+    args = ["tune", tiny_session / "s", "--base", tiny_session / "base.yaml", "--optimizer", "ga",
+            "--population", "6", "--generations", "2", "--seed", "2", "--workers", "1", "--no-progress", "--force",
             "--holdout", "none"]
     proc = cli(*args, "--report", tmp_path / "rep", "--out", tmp_path / "p.yaml", "--safety-sweep", "quick")
     sweep = json.loads((tmp_path / "rep" / "summary.json").read_text())["gate"]["safety_sweep"]
@@ -333,3 +333,23 @@ def test_timeout_stops_between_generations_and_resume_finishes_the_same(referenc
     cli(*_args(tiny_session, "--store", store, "--resume", "--out", tmp_path / "p.yaml"))
     assert _trials(store) == _trials(reference_run / "store.sqlite")
     assert load_params(tmp_path / "p.yaml") == load_params(reference_run / "p.yaml")
+
+
+def test_candidates_are_ranged_with_the_ranging_settings_of_the_config_that_will_fly(tiny_session, tmp_path):
+    """``--config``: the run config the daemon will fly; its ranging: section is what every candidate is ranged
+    with (here a stricter confidence), and the report says where the settings came from. A config run would
+    refuse is refused the same way (exit 78, one line)."""
+    config = tmp_path / "run.yaml"
+    config.write_text("source:\n  kind: synthetic\nranging:\n  min_confidence: 0.9\n  min_quality: 50\n")
+    args = ["tune", tiny_session / "s", "--base", tiny_session / "base.yaml", "--optimizer", "random",
+            "--population", "2", "--generations", "1", "--workers", "1", "--no-progress", "--force",
+            "--safety-sweep", "none"]
+    cli(*args, "--config", config, "--report", tmp_path / "rep", "--out", tmp_path / "p.yaml")
+    summary = json.loads((tmp_path / "rep" / "summary.json").read_text())
+    assert summary["ranging"]["from"] == f"the ranging settings of {config}"
+    assert summary["ranging"]["min_confidence"] == 0.9 and summary["ranging"]["min_quality"] == 50
+    assert read_provenance(tmp_path / "p.yaml")["ranging"]["min_confidence"] == 0.9
+    config.write_text("source:\n  kind: synthetic\nranging:\n  min_confidence: 2\n")
+    bad = cli(*args, "--config", config, "--store", tmp_path / "b.sqlite", check=False)
+    assert bad.returncode == EXIT_CONFIG and "ranging.min_confidence" in bad.stderr
+    assert bad.stderr.strip().count("\n") == 0
