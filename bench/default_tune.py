@@ -20,13 +20,17 @@ rendered; ``--again`` runs the same tune once more on the kept cache (a second t
 from __future__ import annotations
 
 import argparse
+import fcntl
 import os
 import pty
+import resource
 import select
 import shutil
+import struct
 import subprocess
 import sys
 import tempfile
+import termios
 import time
 from pathlib import Path
 
@@ -48,6 +52,8 @@ def run_on_terminal(argv: list[str], cwd: str, timeout_s: float, env: dict | Non
                     ) -> tuple[int, float, list[tuple[float, str]]]:
     """(exit status, wall s, [(seconds since start, text)] of every chunk it wrote) of ``argv`` on a pty."""
     master, slave = pty.openpty()
+    # a terminal window of 120 x 40, as a user's: a fresh pty has none, and the progress bar sizes itself by it
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
     t0 = time.monotonic()
     proc = subprocess.Popen(argv, cwd=cwd, stdin=slave, stdout=slave, stderr=slave, close_fds=True, env=env)
     os.close(slave)
@@ -81,18 +87,32 @@ def longest_silence(chunks: list[tuple[float, str]], wall_s: float) -> tuple[flo
 def measure(work: str, argv: list[str], timeout_s: float, env: dict, label: str) -> bool:
     """One tune on a terminal: prints its tail and readings; True when it met both goals."""
     print(f"$ uav-depth {' '.join(argv[len(uav_depth()):])}    ({label})")
+    cpu0 = _children_cpu()
     rc, wall, chunks = run_on_terminal(argv, work, timeout_s, env)
+    cpu = _children_cpu() - cpu0
     gap, after = longest_silence(chunks, wall)
-    before_text = chunks[after - 1][1] if after > 0 else "(the start)"
-    after_text = chunks[after][1] if after < len(chunks) else "(the end)"
+    visible = [(t, text.replace("\r", "\n").strip()) for t, text in chunks]
+    before_text = next((text for t, text in reversed(visible[:after]) if text), "(the start)")
+    after_text = next((text for t, text in visible[after:] if text), "(the end)")
+    transcript = os.path.join(work, f"transcript-{label.split(',')[0].replace(' ', '-')}.txt")
+    with open(transcript, "w") as fh:
+        fh.writelines(f"{t:8.2f} {text}\n" for t, text in visible if text)
     tail = "".join(text for _, text in chunks)[-1500:]
     print(tail.replace("\r", "\n"))
     print(f"load after: {_load()}")
     print(f"{label}: exit status {rc}; wall {wall:.1f} s (goal <= {GOAL_WALL_S:.0f}); longest silence {gap:.1f} s "
-          f"(goal <= {GOAL_SILENCE_S:.0f})")
+          f"(goal <= {GOAL_SILENCE_S:.0f}); CPU time of the tune and its workers {cpu:.0f} s (on {os.cpu_count()} "
+          f"idle cores at least {cpu / (os.cpu_count() or 1):.0f} s of wall time)")
     print(f"  silent after: {before_text.strip()[-160:]!r}")
     print(f"  until:        {after_text.strip()[:160]!r}")
+    print(f"  every line with its time: {transcript}")
     return rc in (0, 1) and wall <= GOAL_WALL_S and gap <= GOAL_SILENCE_S
+
+
+def _children_cpu() -> float:
+    """User + system CPU seconds of every finished child process (the tune and the workers it joined)."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
 
 
 def _load() -> str:
@@ -105,16 +125,21 @@ def main() -> int:
     ap.add_argument("--keep", default=None, help="work in this directory (kept) instead of a temporary one")
     ap.add_argument("--timeout", type=float, default=900.0, help="stop the tune after this many seconds")
     ap.add_argument("--again", action="store_true", help="then run the same tune with the sweep cached")
+    ap.add_argument("--cache", default=None, help="XDG_CACHE_HOME for the tune (default: an empty one in the work "
+                    "directory; one that holds the sweep measures a tune on a rig seen before)")
     ap.add_argument("extra", nargs="*", help="more tune arguments (after --)")
     args = ap.parse_args()
     work = args.keep or tempfile.mkdtemp(prefix="default-tune-")
     shutil.rmtree(work, ignore_errors=True)
     os.makedirs(work)
-    env = dict(os.environ, XDG_CACHE_HOME=os.path.join(work, "cache"))     # a new user's empty cache
+    cache = args.cache or os.path.join(work, "cache")          # by default a new user's empty cache
+    env = dict(os.environ, XDG_CACHE_HOME=cache)
+    cached = any(Path(cache).glob("uav-depth/safety-sweep/*/sweep.json"))
     print(machine_line())
     print(f"load before: {_load()}")
     subprocess.run(uav_depth() + SYNTH, cwd=work, check=True, stdout=subprocess.DEVNULL)
-    ok = measure(work, uav_depth() + TUNE + args.extra, args.timeout, env, "first tune, empty cache")
+    ok = measure(work, uav_depth() + TUNE + args.extra, args.timeout, env,
+                 "tune, sweep cached" if cached else "first tune, empty cache")
     if args.again:
         shutil.rmtree(os.path.join(work, "r"), ignore_errors=True)
         ok = measure(work, uav_depth() + TUNE + args.extra, args.timeout, env, "again, sweep cached") and ok

@@ -144,6 +144,7 @@ def run_tune(logdir: Path, base: Path, out: Path, seed: int, args, extra: list[s
     for opt in ("population", "generations", "workers", "metric"):
         if getattr(args, opt) is not None:
             cmd += [f"--{opt}", str(getattr(args, opt))]
+    cmd += args.tune_args
     t0 = time.monotonic()
     proc = subprocess.run(cmd, capture_output=True, text=True)
     refused = next((line.split("not written: ", 1)[1] for line in proc.stderr.splitlines() if "not written: " in line),
@@ -220,6 +221,8 @@ def main() -> int:
     ap.add_argument("--generations", type=int, default=None, help="tune's --generations (default: tune's own)")
     ap.add_argument("--workers", type=int, default=None, help="tune's --workers")
     ap.add_argument("--metric", default=None, help="tune's --metric (selfsup: no reference)")
+    ap.add_argument("--tune-args", default="", type=lambda t: t.split(),
+                    help="more tune arguments for every tune, e.g. '--safety-sweep quick' (say so when you report)")
     ap.add_argument("--logs", choices=("synthetic", "daemon"), default="synthetic",
                     help="train on synthetic sessions, or on the daemon's own frame log of the synthetic source")
     ap.add_argument("--json", default=None, help="write every figure here")
@@ -235,7 +238,8 @@ def main() -> int:
         else:
             train = sessions(work / "train", rig, list(range(args.train_seeds)), args.frames)
         held = FrameSet("held", tuple(load_frame(r) for r in iter_frames(held_dir)))
-        runs = work / f"runs-{args.metric or 'default'}-{args.logs}"
+        label = [args.metric or "default", args.logs] + [a.strip("-") for a in args.tune_args]
+        runs = work / ("runs-" + "-".join(label))
         runs.mkdir(parents=True, exist_ok=True)
         results = [one_seed(rig, train, held_dir, held, int(s), runs, args) for s in args.seeds.split(",")]
         print_rig(rig, results, held)

@@ -57,8 +57,10 @@ def refusal(metric: str, selection: Selection, verdict_on: str, frames: int, bas
         if screened:
             reasons.append(f"{screened} candidate(s) that beat the base on the {selection.on} frames failed the "
                            "safety sweep (report: table.md)")
+        best = _best_other(selection)
         reasons.append(f"no candidate beats the base on the {selection.on} frames the choice was made on "
-                       f"({metric} best {_best_other(selection):.4g} vs base {selection.base[selection.on]:.4g})")
+                       + (f"({metric} best {best:.4g} vs base {selection.base[selection.on]:.4g})"
+                          if best == best else "(every candidate was set aside: report, table.md)"))
     elif not beats:
         reasons.append(f"the tuned parameters do not beat the base on the {frames} {verdict_on} frame(s) ({metric} "
                        f"{tuned_value:.4g} vs base {base_value:.4g})")

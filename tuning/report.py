@@ -20,7 +20,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import yaml
@@ -237,8 +237,10 @@ def side_by_side(path: Path, frame, base: StereoParams, tuned: StereoParams) -> 
 
 def write_report(outdir: str | Path, summary: Mapping[str, Any], config: Mapping[str, Any],
                  framesets: Sequence[FrameSet], base: StereoParams, tuned: StereoParams,
-                 pareto_points: Sequence[tuple[float, float]], images_per_set: int = 2) -> Path:
-    """Write every report file into ``outdir`` (created); returns the directory."""
+                 pareto_points: Sequence[tuple[float, float]], images_per_set: int = 2,
+                 progress: Callable[[int, int], None] = lambda done, total: None) -> Path:
+    """Write every report file into ``outdir`` (created); returns the directory. ``progress(done, total)``
+    after the plots and each image (each image runs both parameter sets on one frame)."""
     out = Path(outdir)
     (out / "frames").mkdir(parents=True, exist_ok=True)
     metric = summary["config"]["metric"]
@@ -256,8 +258,9 @@ def write_report(outdir: str | Path, summary: Mapping[str, Any], config: Mapping
     budget = summary.get("budget") or {}
     plot_pareto(out / "pareto.png", pareto_points, budget.get("front") or [], budget.get("chosen"), metric,
                 budget.get("max_ms"))
-    for fs in framesets:
-        for frame in fs.frames[:images_per_set]:
-            name = frame.key.replace("/", "_")
-            side_by_side(out / "frames" / f"{fs.name}_{name}.png", frame, base, tuned)
+    images = [(fs, frame) for fs in framesets for frame in fs.frames[:images_per_set]]
+    progress(1, len(images) + 1)
+    for i, (fs, frame) in enumerate(images, 2):
+        side_by_side(out / "frames" / f"{fs.name}_{frame.key.replace('/', '_')}.png", frame, base, tuned)
+        progress(i, len(images) + 1)
     return out

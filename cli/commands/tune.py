@@ -287,7 +287,7 @@ def _write_report(d, args: argparse.Namespace, summary: dict, request, terminal)
                 "ranging": summary["ranging"], "opencv": cv2.__version__, "version": __version__}
     terminal.phase(f"writing the report and its plots into {args.report}")
     write_report(args.report, summary, resolved, [d.framesets[n] for n in d.names], request.base, d.chosen,
-                 d.points)
+                 d.points, progress=terminal.counter("report: plots and images written"))
     print(f"wrote report {args.report}")
 
 

@@ -92,8 +92,8 @@ def test_a_refusal_says_when_the_safety_sweep_set_aside_every_candidate_that_bea
     none = FartherCheck(0, 0, 0, None)
     line = refusal("flown", sel, "test", 2, 20.3, 20.3, False, [none], screened=1)
     assert line == ("1 candidate(s) that beat the base on the validation frames failed the safety sweep (report: "
-                    "table.md); no candidate beats the base on the validation frames the choice was made on (flown "
-                    "best nan vs base 20.3)")
+                    "table.md); no candidate beats the base on the validation frames the choice was made on (every "
+                    "candidate was set aside: report, table.md)")
     assert not refusal("flown", sel, "test", 2, 20.3, 20.3, False, [none], 0).startswith("1 candidate")
     # a choice that beat the base on its validation frames but not on the test frames: the test says so
     won = Selection(rows[:1] + [dict(rows[1], fragile=None)], 1, "validation")
