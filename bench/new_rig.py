@@ -9,8 +9,8 @@ noise, a gain mismatch between the eyes and blur), as that user would:
 2. the base: the nearest shipped file (``deploy/params-flight*.yaml`` by image width);
 3. ``uav-depth tune TRAIN --base BASE --out tuned.yaml`` with tune's defaults (``--population`` and
    ``--generations`` shrink the budget: say so when you report) and each ``--seeds`` seed;
-4. the ceiling: the same tune on the held-out sessions themselves (``--test none --holdout none --force``:
-   trained and chosen on the very frames it is measured on, the most tuning could give);
+4. the ceiling: the same tune on the held-out sessions themselves (:data:`CEILING_ARGS`: trained and chosen on
+   the very frames it is measured on by the fitness alone, no safety sweep: the most the search could give);
 5. every file ranged on the held-out frames as the daemon flies it (flight pipeline, then its ranging stage):
    median absolute branch-distance error, the worst reading farther than the truth, frames farther than 2 %,
    frames with no measurement, and ms per frame, timed side by side in this process.
@@ -140,11 +140,11 @@ def measure(params, held: FrameSet) -> Measured:
 def run_tune(logdir: Path, base: Path, out: Path, seed: int, args, extra: list[str]) -> dict:
     """``uav-depth tune`` as a user runs it; its exit status, one-line refusal and wall time."""
     cmd = [sys.executable, "-m", "uav_depth.cli.main", "tune", str(logdir), "--base", str(base), "--out", str(out),
-           "--seed", str(seed), "--report", str(out.with_suffix("")) + "-report", "--no-progress", *extra]
+           "--seed", str(seed), "--report", str(out.with_suffix("")) + "-report", "--no-progress"]
     for opt in ("population", "generations", "workers", "metric"):
         if getattr(args, opt) is not None:
             cmd += [f"--{opt}", str(getattr(args, opt))]
-    cmd += args.tune_args
+    cmd += args.tune_args + extra           # the ceiling's own arguments last: they win
     t0 = time.monotonic()
     proc = subprocess.run(cmd, capture_output=True, text=True)
     refused = next((line.split("not written: ", 1)[1] for line in proc.stderr.splitlines() if "not written: " in line),
@@ -153,6 +153,11 @@ def run_tune(logdir: Path, base: Path, out: Path, seed: int, args, extra: list[s
         raise SystemExit(f"tune failed ({proc.returncode}): {proc.stderr[-2000:]}")
     return {"rc": proc.returncode, "refused": refused, "wall_s": time.monotonic() - t0,
             "line": next((line for line in proc.stdout.splitlines() if " candidates: " in line), "")}
+
+
+#: The ceiling: trained and chosen on the held-out frames themselves, on the fitness alone (no safety sweep: an
+#: accuracy bound to compare with, not a file to fly), written whatever the gate says.
+CEILING_ARGS = ["--test", "none", "--holdout", "none", "--safety-sweep", "none", "--force"]
 
 
 def one_seed(rig: Rig, train: Path, held_dir: Path, held: FrameSet, seed: int, work: Path, args) -> dict:
@@ -164,8 +169,7 @@ def one_seed(rig: Rig, train: Path, held_dir: Path, held: FrameSet, seed: int, w
         stale.unlink(missing_ok=True)
     tuned = run_tune(train, base_file, out, seed, args, [])
     ceiling_file = work / f"ceiling-s{seed}.yaml"
-    ceiling = run_tune(held_dir, base_file, ceiling_file, seed, args, ["--test", "none", "--holdout", "none",
-                                                                       "--force"])
+    ceiling = run_tune(held_dir, base_file, ceiling_file, seed, args, CEILING_ARGS)
     rejected = work / f"tuned-s{seed}.rejected.yaml"
     written = load_params(out) if out.exists() else base
     result = {"seed": seed, "tune": tuned, "ceiling_tune": ceiling, "base": measure(base, held).__dict__,

@@ -5,7 +5,7 @@ on 11). For each seed, Optuna's TPE (multivariate, the base enqueued first, as `
 ``--trials`` proposals of the flown keys on the 6 training scenes twice:
 
 - ``ranging``: the map scored in the ranging region alone (the daemon's default, the central third), plus the
-  branch term (the flown fitness before issue 12's change);
+  branch term (the other way the flown fitness could score the map);
 - ``matched``: the map scored over the matched region (``tuning.objective.FITNESS["flown"]`` as it is now),
   plus the same branch term.
 

@@ -111,7 +111,7 @@ def _flown(metric: str) -> Callable[[FrameData, DisparityResult, StereoParams, R
     """The flown fitness with ``metric`` for the map: scored over the candidate's matched region, the branch in
     the ranging region.
 
-    Why not the map in the ranging region alone (issue 12; 17 real pairs, tune on 6, report on 11, TPE 160
+    Why not the map in the ranging region alone (measured on 17 real pairs, tune on 6, report on 11, TPE 160
     proposals, seeds 0-2, ``bench/tune_region.py``): scored there, the search cut the training error in that
     region by 33-37 % and the held-out error in it by only 7-15 %; scored over the matched region, it cut the
     held-out error in the ranging region by 14-22 %. The parameters act on the whole frame; a ninth of it
@@ -182,8 +182,8 @@ def _branch(frame: FrameData, res: DisparityResult, params: StereoParams,
 
 
 def _selfsup(frame: FrameData, res: DisparityResult, params: StereoParams, ranging: RangingConfig) -> float:
-    # Implemented by the reference-disparity work (issue 7); imported lazily so the
-    # tuner runs without it for every other metric.
+    # Imported on use: the tuner runs without the self-supervised loss's extra dependencies for every other
+    # metric.
     from uav_depth.tuning.selfsup import selfsup_loss
 
     return float(selfsup_loss(frame.left, frame.right, res.disparity, box=scored_box(params, frame.left.shape)))

@@ -48,8 +48,8 @@ NUDGE_STEPS: Mapping[str, int] = {"sgbm.block_size": 2, "sgbm.uniqueness_ratio":
 NUDGE_SCALED: tuple[str, ...] = ("sgbm.p1", "sgbm.p2", "sgbm.speckle_window_size")
 #: The block size's nudge keeps P1 and P2 per block pixel: SGBM adds them to matching costs summed over the
 #: block, so they scale with its area (OpenCV's sample: P1 = 8 x channels x block_size^2, P2 = 32 x ...). With
-#: the same P1/P2, block 1 -> 3 cuts the smoothing ninefold: not one step but a different matcher (issue 12: at
-#: the default 30 x 100 budget every block-1 candidate failed that nudge, and the tune wrote nothing).
+#: the same P1/P2, block 1 -> 3 cuts the smoothing ninefold: not one step but a different matcher (measured: at
+#: the default 30 x 100 budget on the real pairs every block-1 candidate failed that nudge, and nothing was written).
 BLOCK_KEY = "sgbm.block_size"
 
 
@@ -176,9 +176,9 @@ def cross_select(executor: Executor, fitness_name: str, base: StereoParams, sele
     """Among the fold winners (``study.Selection`` of each fold), the one with the largest gain over the base on its
     own fold's validation sessions, the only sessions it did not train on (relative, so that folds of different
     difficulty compare). Each winner is also scored on the other folds' validation sessions, for the report: those
-    were in its training set, so their mean favours the winner that fitted its training sessions best (issue 12:
-    on the real pairs at the default 30 x 100 it chose a candidate 3 % better on 11 other scenes over one 15 %
-    better; docs/tuning.md). The gate uses the clean cross-validated estimate."""
+    were in its training set, so their mean favours the winner that fitted its training sessions best (on
+    the real pairs at the default 30 x 100 it chose a candidate 3 % better on 11 other scenes over one 15 %
+    better; docs/tuning.md). The gate judges on the test frames."""
     fitness = FITNESS[fitness_name]
     folds = [{"base": s.base, "chosen": s.chosen, "beats_base": s.beats_base, "winner": s.winner} for s in selections]
     base_h = [s.base["validation"] for s in selections]

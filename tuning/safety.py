@@ -26,6 +26,7 @@ from uav_depth.tuning.frames import DiskFrames, FrameData, FrameSet
 from uav_depth.tuning.metrics import FARTHER_TOL_PCT, branch_signed, is_farther
 from uav_depth.tuning.objective import Task
 from uav_depth.tuning.robust import FartherCheck
+from uav_depth.tuning.study import TuneInterrupted
 
 #: The safety sweep's accuracy rule: in each scene variant (plain, varied, leafy), a candidate's median absolute
 #: branch-distance error over the sweep frames it and the base both read may be at most SWEEP_MEDIAN_FACTOR x the
@@ -153,7 +154,6 @@ class SafetyScreen:
         reading = self._read(params, label, limit)
         self._readings[params] = reading
         if self.stop is not None and self.stop.is_set():
-            from uav_depth.tuning.study import TuneInterrupted
             raise TuneInterrupted("interrupted in the safety sweep; run the same command with --resume to "
                                   "continue (every search result is kept)")
         return reading
