@@ -25,8 +25,7 @@ from uav_depth.tuning.choice import top_candidates
 from uav_depth.tuning.frames import DiskFrames, FrameSet
 from uav_depth.tuning.metrics import branch_signed, is_farther
 from uav_depth.tuning.objective import FITNESS, branch_distances, frame_ranger
-from uav_depth.tuning.imaging import estimate
-from uav_depth.tuning.safety import rig, rig_sample
+from uav_depth.tuning.safety import rig_sample
 from uav_depth.tuning.split import load_folds
 from uav_depth.tuning.store import RunStore, fold_study_name
 
@@ -38,9 +37,8 @@ def _reading(d: float | None, truth: float) -> str:
 class Sweep:
     """The sweep's frames (read from tune's cache, rendered there first when missing) and each reading."""
 
-    def __init__(self, sample, train: FrameSet, name: str):
-        same_rig = [f for f in train.frames if rig(f) == rig(sample)]
-        self.sample, self.sweep = sample, safety_frames(sample, estimate(same_rig), name)   # as tune renders it
+    def __init__(self, sample, name: str):
+        self.sample, self.sweep = sample, safety_frames(sample, name)
         self.truth = self.sweep.truths
         self.frames = FrameSet("sweep", DiskFrames("sweep", [(self.sweep.path, i) for i in self.sweep.frame_ids])
                                .frames)
@@ -73,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     sample = rig_sample(folds[0][0])
     if sample is None:
         raise SystemExit("no calibrated training frame: the tuner runs no safety sweep on this log")
-    sweep = Sweep(sample, folds[0][0], args.sweep)
+    sweep = Sweep(sample, args.sweep)
     print(machine_line())
     print(f"safety sweep: {len(sweep.truth)} frames at {sample.left.shape[1]}x{sample.left.shape[0]}, f = "
           f"{sample.focal_px:.1f} px, B = {sample.baseline_m:.3f} m (the rig of {sample.key})")

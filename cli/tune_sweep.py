@@ -113,41 +113,19 @@ def render_sweep(path: Path, items: list, workers: int, progress: Callable[[int,
                                       f"frames are kept in {path})")
 
 
-def at_imaging(items: list, imaging) -> tuple[list, dict]:
-    """The sweep's (key, scene) items with the log's imaging where it lies outside what the scenes already
-    render (tuning.imaging): its sensor noise when noisier than every scene, and the right eye's gain and offset
-    when outside the scenes' range. Returns the items and the changes ({} when none)."""
-    if imaging is None:
-        return items, {}
-    scenes = [c for _, c in items]
-    changes: dict = {}
-    if imaging.noise_std > max(c.noise_std for c in scenes):
-        changes["noise_std"] = round(imaging.noise_std, 1)
-    if not (min(c.right_gain for c in scenes) <= imaging.right_gain <= max(c.right_gain for c in scenes)
-            and min(c.right_offset for c in scenes) <= imaging.right_offset <= max(c.right_offset for c in scenes)):
-        changes.update(right_gain=round(imaging.right_gain, 3), right_offset=round(imaging.right_offset, 1))
-    if not changes:
-        return items, {}
-    from dataclasses import replace
-
-    return [(k, replace(c, **changes)) for k, c in items], changes
-
-
-def safety_frames(sample, imaging=None, sweep: str = "standard", cache: str | None = None, workers: int = 1,
+def safety_frames(sample, sweep: str = "standard", cache: str | None = None, workers: int = 1,
                   phase: Callable[[str], None] = lambda text: None,
                   progress: Callable[[int, int], None] = lambda done, total: None,
                   stop: threading.Event | None = None):
     """The named sweep of uav_depth.sim.sweep (SWEEPS) at the rig of ``sample`` (a FrameData of the log: its image
-    size, focal length and baseline) and with the log's ``imaging`` where it lies outside the scenes' own
-    (:func:`at_imaging`), as a :class:`~uav_depth.tuning.safety.SweepFrames` in the cache, rendered
+    size, focal length and baseline) as a :class:`~uav_depth.tuning.safety.SweepFrames` in the cache, rendered
     there when the tune first needs it. ``cache``: the cache directory (None: :func:`default_cache`; "none": a
     temporary directory, removed at exit)."""
     from uav_depth.sim.sweep import SWEEPS
     from uav_depth.tuning.safety import SweepFrames
 
     h, w = sample.left.shape[:2]
-    items, changes = at_imaging(list(SWEEPS[sweep](w, h, sample.focal_px, sample.baseline_m)), imaging)
-    alike = "".join(f", {k} {v:g}" for k, v in changes.items()) + (" (the log's)" if changes else "")
+    items = list(SWEEPS[sweep](w, h, sample.focal_px, sample.baseline_m))
     if cache == "none":
         import atexit
         import shutil
@@ -161,9 +139,9 @@ def safety_frames(sample, imaging=None, sweep: str = "standard", cache: str | No
     def render() -> list[float]:
         index = path / INDEX
         if index.exists():
-            phase(f"the safety sweep at {w}x{h}{alike} ({len(items)} frames) from the cache {path}")
+            phase(f"the safety sweep at {w}x{h} ({len(items)} frames) from the cache {path}")
         else:
-            phase(f"rendering the safety sweep at {w}x{h}, f {sample.focal_px:g} px, B {sample.baseline_m:g} m{alike}: "
+            phase(f"rendering the safety sweep at {w}x{h}, f {sample.focal_px:g} px, B {sample.baseline_m:g} m: "
                   f"{len(items)} frames on {workers} worker(s), kept in {path} for the next tune on this rig")
             path.mkdir(parents=True, exist_ok=True)
             render_sweep(path, items, workers, progress, stop)

@@ -29,8 +29,7 @@ from uav_depth.tuning.gate import Decision, Verdict, refusal
 from uav_depth.tuning.objective import FITNESS, FLOWN_FITNESS, FLOWN_RANGING, Task, default_convention
 from uav_depth.tuning.optimizers import make_space
 from uav_depth.tuning.robust import CrossSelection, cross_select, farther_check
-from uav_depth.tuning.imaging import Imaging, estimate
-from uav_depth.tuning.safety import UNSAFE, SafetyScreen, SweepFrames, rig, rig_sample
+from uav_depth.tuning.safety import UNSAFE, SafetyScreen, SweepFrames, rig_sample
 from uav_depth.tuning.space import describe_space, parse_keys
 from uav_depth.tuning.split import TEST, Split, plan, set_names
 from uav_depth.tuning.store import RunStore, fold_study_name
@@ -74,10 +73,9 @@ class TuneRequest:
     workers: int | None = None
     ray_address: str | None = None
     ranging: RangingConfig = FLOWN_RANGING
-    #: The safety sweep rendered at the rig of a given frame of the log (its size, focal length and baseline)
-    #: and with the log's imaging (tuning.imaging), as a session on disk, or None for no safety sweep. Injected
-    #: by the caller: the tuner renders nothing.
-    safety: Callable[[FrameData, Imaging | None], SweepFrames] | None = None
+    #: The safety sweep rendered at the rig of a given frame of the log (its size, focal length and baseline),
+    #: as a session on disk, or None for no safety sweep. Injected by the caller: the tuner renders nothing.
+    safety: Callable[[FrameData], SweepFrames] | None = None
 
     def __post_init__(self) -> None:
         if self.timeout_s is not None and not self.timeout_s > 0:
@@ -135,13 +133,12 @@ class Sealed:
 
 
 def _sweep(request: TuneRequest, split: Split) -> SweepFrames | None:
-    """The safety sweep at the rig most training frames share and with their imaging (noise, the eyes' gains),
-    to be rendered when a candidate first needs it (or found in the caller's cache)."""
-    train = split.folds[0][0]
-    sample = rig_sample(train) if request.safety is not None else None
+    """The safety sweep at the rig most training frames share, to be rendered when a candidate first needs it
+    (or found in the caller's cache)."""
+    sample = rig_sample(split.folds[0][0]) if request.safety is not None else None
     if sample is None:
         return None
-    return request.safety(sample, estimate([f for f in train.frames if rig(f) == rig(sample)]))
+    return request.safety(sample)
 
 
 def tune(request: TuneRequest, hooks: Hooks = Hooks()) -> Decision:
