@@ -230,6 +230,7 @@ def main() -> int:
     ap.add_argument("--logs", choices=("synthetic", "daemon"), default="synthetic",
                     help="train on synthetic sessions, or on the daemon's own frame log of the synthetic source")
     ap.add_argument("--json", default=None, help="write every figure here")
+    ap.add_argument("--label", default="", help="names this run's folder of files and reports (runs side by side)")
     args = ap.parse_args()
     print(machine_line())
     print(f"load: {' '.join(f'{v:.2f}' for v in os.getloadavg())} (1/5/15 min); {' '.join(sys.argv[1:])}")
@@ -242,8 +243,8 @@ def main() -> int:
         else:
             train = sessions(work / "train", rig, list(range(args.train_seeds)), args.frames)
         held = FrameSet("held", tuple(load_frame(r) for r in iter_frames(held_dir)))
-        label = [args.metric or "default", args.logs] + [a.strip("-") for a in args.tune_args]
-        runs = work / ("runs-" + "-".join(label))
+        label = [args.metric or "default", args.logs] + [a.strip("-") for a in args.tune_args] + [args.label]
+        runs = work / ("runs-" + "-".join(filter(None, label)))
         runs.mkdir(parents=True, exist_ok=True)
         results = [one_seed(rig, train, held_dir, held, int(s), runs, args) for s in args.seeds.split(",")]
         print_rig(rig, results, held)
