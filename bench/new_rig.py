@@ -174,7 +174,7 @@ def one_seed(rig: Rig, train: Path, held_dir: Path, held: FrameSet, seed: int, w
     written = load_params(out) if out.exists() else base
     result = {"seed": seed, "tune": tuned, "ceiling_tune": ceiling, "base": measure(base, held).__dict__,
               "written": measure(written, held).__dict__, "ceiling": measure(load_params(ceiling_file), held).__dict__}
-    if rejected.exists():
+    if rejected.exists() and load_params(rejected) != base:      # the choice kept the base: nothing to judge
         result["rejected"] = measure(load_params(rejected), held).__dict__
     return result
 
@@ -185,7 +185,9 @@ def verdict(r: dict) -> str:
     b, w = r["base"], r["written"]
     if r["tune"]["refused"] is not None:
         rej = r.get("rejected")
-        right = rej is None or not (rej["median_pct"] < b["median_pct"] and rej["farther"] <= b["farther"])
+        if rej is None:
+            return "refused: no candidate beat the base where the choice was made"
+        right = not (rej["median_pct"] < b["median_pct"] and rej["farther"] <= b["farther"])
         return f"refused ({'rightly' if right else 'WRONGLY: the candidate ranged better'})"
     if w["median_pct"] < b["median_pct"] and w["farther"] <= b["farther"]:
         return "better"
