@@ -99,7 +99,8 @@ def test_the_safety_screen_sets_a_farther_or_a_less_accurate_candidate_aside(tmp
                                                    "0.25")
         assert screen.reject(FLIGHT.to_dict()) is None
         check = screen.check(nearer)
-        assert (check.base, check.tuned, check.frames) == (0, 0, 1) and "median absolute error of 1.40 %" in check.reason
+        assert (check.base, check.tuned, check.frames) == (0, 0, 1)
+        assert "median absolute error of 1.40 %" in check.reason
         assert ex.read == [FLIGHT.sgbm.p2, T96.sgbm.p2, nearer.sgbm.p2]      # the base first, each once
         assert len(phases) == 1 and phases[0].startswith("the safety sweep: ")
     assert not SafetyScreen(None, FLIGHT).active
@@ -135,7 +136,8 @@ def test_a_worse_nominal_case_fails_the_sweep_even_when_the_pooled_median_is_bet
     plain branch (a tuned file read the sweep's plain branch 2.18 % off against the flight file's 1.34 %, passed
     pooled by 0.002 point, and read the real pairs worse)."""
     sweep = _scripted_sweep()
-    base_err, tuned_err = {"plain": -0.010, "leafy": -0.010}, {"plain": -0.022, "leafy": -0.005}  # nearer: never farther
+    # nearer than the truth: never farther
+    base_err, tuned_err = {"plain": -0.010, "leafy": -0.010}, {"plain": -0.022, "leafy": -0.005}
     ex = Scripted(sweep, lambda p: base_err if p == FLIGHT.to_dict() else tuned_err)
     check = SafetyScreen(sweep, FLIGHT, ex).check(T96)
     assert (check.base, check.tuned) == (0, 0)
