@@ -36,7 +36,7 @@ from uav_depth.core.errors import ConfigError
 from uav_depth.daemon.config import LoggingConfig
 from uav_depth.core.session import Session, SessionWriter
 from uav_depth.daemon.ranging import Estimate
-from uav_depth.daemon.sources.base import Frame
+from uav_depth.core.frames import Frame
 
 log = logging.getLogger("uav_depth.framelog")
 

@@ -13,7 +13,7 @@ from uav_depth.core.rectify import Rectifier
 from uav_depth.sim.scene import Pose, SceneConfig, write_session
 from uav_depth.cli.sources import SOURCES
 from uav_depth.daemon.sources import EndOfStream, create_source
-from uav_depth.daemon.sources.base import device_capture_time
+from uav_depth.core.frames import device_capture_time
 from uav_depth.sim.source import SyntheticSource
 from uav_depth.daemon.sources.uvc import read_zed_conf, split_side_by_side
 
