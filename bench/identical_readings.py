@@ -60,14 +60,24 @@ from uav_depth.daemon.mavlink_out import distance_report  # noqa: E402
 from uav_depth.sim.scene import SceneConfig  # noqa: E402
 from uav_depth.sim.sweep import VARIANTS  # noqa: E402
 
-try:   # the ranging's home: the core (after issue 45's move), else the runtime
-    from uav_depth.core.ranging import Ranger, RangingConfig, default_roi
-except ImportError:  # pragma: no cover - before the move
-    from uav_depth.daemon.ranging import Ranger, RangingConfig, default_roi  # type: ignore[no-redef]
+# The record is made the same way before and after issue 45's move (ranging, the frame interface and the flight
+# settings into the core, declared pipelines), so that an older commit can be recorded to compare with.
 try:
+    from uav_depth.core.disparity import FAITHFUL, MEASURED
+    from uav_depth.core.ranging import Ranger, RangingConfig, default_roi
     from uav_depth.daemon.estimate import Estimate
+
+    flight_params = benchmark.flight_params  # type: ignore[attr-defined]
+
+    def pipeline(params: Any, smooth: bool) -> DisparityPipeline:
+        return DisparityPipeline(params, FAITHFUL if smooth else MEASURED)
 except ImportError:  # pragma: no cover - before the move
-    from uav_depth.daemon.ranging import Estimate  # type: ignore[no-redef]
+    from uav_depth.daemon.ranging import Estimate, Ranger, RangingConfig, default_roi  # type: ignore[no-redef]
+
+    flight_params = benchmark.flight_params  # type: ignore[attr-defined]
+
+    def pipeline(params: Any, smooth: bool) -> DisparityPipeline:
+        return DisparityPipeline(params, refine=smooth)  # type: ignore[call-arg]
 
 SETS = ("near", "leafy", "real", "bench")
 #: The fixed clock every DISTANCE_SENSOR is built at: capture and "now" at 100 s after the start, fresh.
@@ -165,12 +175,11 @@ def real_readings(data: Path) -> Iterator[tuple[str, dict]]:
 def bench_readings() -> Iterator[tuple[str, dict]]:
     """``uav-depth bench``'s readings: its default frames through its default variants, and the exact floor."""
     frames = benchmark.make_frames(12, 1280, 720, 0)
-    flight = benchmark.flight_params(focal_px=700.0)
+    flight = flight_params(focal_px=700.0)
     variants = [("naive", DEFAULT_PARAMS, "smooth"), ("flight+WLS", flight, "smooth"),
                 ("flight-noSmooth", flight, "measured"), ("flight", flight, "flies")]
     for vname, params, how in variants:
-        pipe = (flight_pipeline(params) if how == "flies"
-                else DisparityPipeline(params, refine=how == "smooth"))
+        pipe = flight_pipeline(params) if how == "flies" else pipeline(params, how == "smooth")
         for i, f in enumerate(frames):
             h, w = f.left.shape[:2]
             r = Ranger(RangingConfig(), f.scene.calibration, default_roi(w, h), params)

@@ -227,7 +227,8 @@ def link_latency(args, transport: str = "udp") -> None:
 
     from uav_depth.daemon.config import MavlinkConfig
     from uav_depth.daemon.mavlink_out import MavlinkLink, SendClock
-    from uav_depth.daemon.ranging import Estimate, Measurement, RangeLimits
+    from uav_depth.core.ranging import Measurement, RangeLimits
+    from uav_depth.daemon.estimate import Estimate
 
     limits = RangeLimits(0.3, 10.0, 0.5, 0.4)
     if transport == "tcp":

@@ -24,7 +24,8 @@ import numpy as np
 from uav_depth.core.disparity import DisparityResult, flight_pipeline
 from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, load_params, read_provenance
 from uav_depth.daemon.mavlink_out import TOO_CLOSE, distance_report
-from uav_depth.daemon.ranging import Estimate, Ranger, RangingConfig
+from uav_depth.core.ranging import Ranger, RangingConfig
+from uav_depth.daemon.estimate import Estimate
 from uav_depth.sim.scene import SceneConfig
 from uav_depth.sim.sweep import render
 

@@ -26,7 +26,8 @@ from uav_depth.cli.sources import SOURCES
 from uav_depth.core.params import load_params
 from uav_depth.daemon.config import load_run_config
 from uav_depth.daemon.mavlink_out import distance_report
-from uav_depth.daemon.ranging import Estimate, resolve_roi
+from uav_depth.core.ranging import resolve_roi
+from uav_depth.daemon.estimate import Estimate
 from uav_depth.daemon.stage import build_stage
 from uav_depth.sim.scene import Pose, Scene
 from uav_depth.sim.sitl import rot_x, rot_y
@@ -80,7 +81,7 @@ def main() -> None:
                 r = distance_report(est, lim, 0.0, 1.0)
                 frames += 1
                 if not r.valid:
-                    why = (m.reason or r.condition).split(" (")[0][:60]
+                    why = m.reason_code.value if m.reason_code is not None else r.condition
                     reasons[why] = reasons.get(why, 0) + 1
                     continue
                 sent += 1

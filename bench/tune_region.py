@@ -44,7 +44,7 @@ def main() -> int:
     from uav_depth.core.disparity import flight_pipeline
     from uav_depth.core.params import DEFAULT_PARAMS
     from uav_depth.core.session import iter_frames
-    from uav_depth.daemon.ranging import resolve_roi
+    from uav_depth.core.ranging import resolve_roi
     from uav_depth.tuning.frames import load_frame
     from uav_depth.tuning.objective import BRANCH_PX_PER_PCT, _branch, bench, flown_map, scored_box
     from uav_depth.tuning.space import FLOWN_KEYS, SchemaSpace, build

@@ -7,7 +7,7 @@ the machine is doing slows them alike and their ratio stays meaningful.
 
 One timed step is what the daemon does per frame after capture: the disparity
 pipeline (its stages timed by :class:`DisparityResult.timings_ms`) and the
-branch ranging (:class:`uav_depth.daemon.ranging.Ranger`). Capture, MAVLink
+branch ranging (:class:`uav_depth.core.ranging.Ranger`). Capture, MAVLink
 and the daemon's threads are not in it; their latency is the daemon's own.
 Benchmarks print numbers; nothing here asserts a time.
 """
@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from uav_depth.cli.progress import QUIET, Progress
-from uav_depth.core.disparity import DisparityPipeline, DisparityResult, flight_pipeline
+from uav_depth.core.disparity import FAITHFUL, MEASURED, DisparityPipeline, DisparityResult, flight_pipeline
 from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, disparity_search_range
 from uav_depth.sim.scene import Scene, SceneConfig, background_period_px, vary
 
@@ -224,8 +224,7 @@ def _flat(params: StereoParams) -> dict[str, Any]:
 
 def _ranger_factory() -> Callable[[StereoParams, BenchFrame], Callable[[Any], float | None]]:
     """The daemon's own ranging (defaults, centre third) as ``make(params, frame)(result) -> metres``."""
-    from uav_depth.daemon.ranging import RangingConfig
-    from uav_depth.daemon.ranging import Ranger, default_roi
+    from uav_depth.core.ranging import Ranger, RangingConfig, default_roi
 
     cache: dict[tuple[str, int, int], Any] = {}
 
@@ -262,8 +261,8 @@ def run(frames: Sequence[BenchFrame], variants: Sequence[Variant], progress: Pro
 
     ``progress``: a step line per frame timed (every variant of the round on it) on a terminal."""
     make_ranger = _ranger_factory()
-    pipes = {v.name: flight_pipeline(v.params) if v.flies else DisparityPipeline(v.params, refine=v.smooth)
-             for v in variants}
+    pipes = {v.name: flight_pipeline(v.params) if v.flies
+             else DisparityPipeline(v.params, FAITHFUL if v.smooth else MEASURED) for v in variants}
     results = {v.name: VariantResult(v) for v in variants}
     default_threads = cv2.getNumThreads()
     n_rounds = max(v.rounds for v in variants)

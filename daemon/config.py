@@ -33,7 +33,7 @@ from uav_depth.core.keys import Key, section_values
 from uav_depth.daemon.liveview import LiveViewConfig
 from uav_depth.daemon.mavlink_enums import orientation_code
 from uav_depth.daemon.obstacles import ObstacleConfig
-from uav_depth.daemon.ranging import RangingConfig
+from uav_depth.core.ranging import RangingConfig
 from uav_depth.daemon.rigwatch import RigCheckConfig
 from uav_depth.daemon.sources import BUILTIN, SourceTable, source_config_from_dict, source_keys
 from uav_depth.core.validate import fmt, in_range, number

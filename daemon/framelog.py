@@ -35,7 +35,7 @@ from uav_depth.core.calibration import Calibration
 from uav_depth.core.errors import ConfigError
 from uav_depth.daemon.config import LoggingConfig
 from uav_depth.core.session import Session, SessionWriter
-from uav_depth.daemon.ranging import Estimate
+from uav_depth.daemon.estimate import Estimate
 from uav_depth.core.frames import Frame
 
 log = logging.getLogger("uav_depth.framelog")

@@ -20,7 +20,7 @@ from typing import Callable, Iterator, Mapping
 from uav_depth.daemon.config import ServiceConfig
 from uav_depth.daemon.mavlink_out import SendClock
 from uav_depth.daemon.notify import Notifier
-from uav_depth.daemon.ranging import Estimate
+from uav_depth.daemon.estimate import Estimate
 
 log = logging.getLogger("uav_depth.service")
 

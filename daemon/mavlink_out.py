@@ -53,7 +53,8 @@ from uav_depth.daemon.mavlink_enums import (HEARTBEAT_PERIOD_S, MAV_AUTOPILOT_IN
 from uav_depth.core.errors import ConfigError
 from uav_depth.daemon.mavlink_transport import (Stream, TcpClient, TcpServer, Transport, UdpIn, open_transport,
                                                 wait_readable)
-from uav_depth.daemon.ranging import Estimate, RangeLimits
+from uav_depth.core.ranging import RangeLimits
+from uav_depth.daemon.estimate import Estimate
 
 log = logging.getLogger("uav_depth.mavlink")
 

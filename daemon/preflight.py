@@ -27,7 +27,7 @@ from uav_depth.core.rectify import Rectifier
 from uav_depth.daemon.config import RunConfig
 from uav_depth.daemon.framelog import ensure_log_dir, free_mb
 from uav_depth.daemon.mavlink_out import load_signing_key
-from uav_depth.daemon.ranging import resolve_roi
+from uav_depth.core.ranging import resolve_roi
 from uav_depth.daemon.sources import FrameSource
 from uav_depth.daemon.sources.oak import find_devices, import_depthai
 from uav_depth.daemon.sources.uvc import device_path, read_zed_conf

@@ -7,7 +7,7 @@ Threads and who waits on whom (nobody waits on the stereo stage):
   loss: close, reopen with back-off, STATUSTEXT "camera lost" / "camera back".
 - ``stereo``: takes the newest frame, rectifies, runs the disparity pipeline and
   ranging of the current :class:`~uav_depth.daemon.stage.Stage`, and publishes an
-  :class:`~uav_depth.daemon.ranging.Estimate` by one
+  :class:`~uav_depth.daemon.estimate.Estimate` by one
   assignment. It reads the current stage (pipeline + ranger) by one attribute
   read per frame, so a parameter swap never interrupts a frame.
 - ``mavlink-clock`` (:class:`~uav_depth.daemon.mavlink_out.SendClock`): DISTANCE_SENSOR
@@ -50,7 +50,8 @@ from uav_depth.daemon.rigwatch import RigWatch
 from uav_depth.daemon.mavlink_out import (CAMERA_LOST, MEASURING, PARAMS_UNUSABLE, SHUTTING_DOWN, SOURCE_ENDED,
                                           STARTING, MavlinkLink, SendClock)
 from uav_depth.daemon.notify import Notifier
-from uav_depth.daemon.ranging import Estimate, OutlierGate, RangeLimits, resolve_roi
+from uav_depth.core.ranging import OutlierGate, RangeLimits, resolve_roi
+from uav_depth.daemon.estimate import Estimate
 from uav_depth.daemon.reload import FileWatcher
 from uav_depth.daemon.sources import Frame, FrameSource, create_source
 from uav_depth.daemon.stage import Stage, StageHolder, resolve_calibration

@@ -25,7 +25,7 @@ from uav_depth.core.calibration import Calibration
 from uav_depth.core.disparity import DisparityPipeline, flight_pipeline
 from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError, ParameterWarning
 from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, check_image_size, load_params
-from uav_depth.daemon.ranging import Ranger, RangingConfig
+from uav_depth.core.ranging import Ranger, RangingConfig
 from uav_depth.daemon.reload import file_signature, wait_until_complete
 
 log = logging.getLogger("uav_depth.service")

@@ -17,7 +17,7 @@ def test_wheel_layout(tmp_path):
     assert tops == {"uav_depth"}, f"unexpected top-level entries {tops}"
     assert "uav_depth/__init__.py" not in names, "uav_depth must stay a namespace"
     # every package directory in the source tree is shipped
-    for src, dst in (("daemon", "uav_depth/daemon"), ("tuning", "uav_depth/tuning")):
+    for src, dst in (("core", "uav_depth/core"), ("daemon", "uav_depth/daemon"), ("tuning", "uav_depth/tuning")):
         for init in (ROOT / src).rglob("__init__.py"):
             rel = init.relative_to(ROOT / src).as_posix()
             assert f"{dst}/{rel}" in names, f"{src}/{rel} missing from the wheel: list it in pyproject packages"

@@ -46,7 +46,7 @@ def _check_against(params, origin: str, calibration: str) -> str:
     """The daemon's load-time rules for ``params`` on this camera (raises ConfigError / CalibrationError)."""
     from uav_depth.core.calibration import load_calibration
     from uav_depth.core.rectify import Rectifier
-    from uav_depth.daemon.ranging import RangingConfig, resolve_roi
+    from uav_depth.core.ranging import RangingConfig, resolve_roi
     from uav_depth.daemon.stage import build_stage
 
     calib = Rectifier(load_calibration(calibration)).calibration

@@ -19,7 +19,8 @@ from uav_depth.core.errors import ConfigError
 from uav_depth.core.params import DEFAULT_PARAMS, save_params
 from uav_depth.daemon.config import run_config_from_dict
 from uav_depth.daemon.liveview import LiveView, LiveViewConfig, Offer, colourise, render, wire_fields
-from uav_depth.daemon.ranging import Estimate, Measurement, RangeLimits
+from uav_depth.core.ranging import Measurement, RangeLimits
+from uav_depth.daemon.estimate import Estimate
 
 from mavlink_peer import free_port
 

@@ -13,7 +13,8 @@ from uav_depth.core.errors import ConfigError
 from uav_depth.daemon.mavlink_out import (MavlinkLink, SendClock, distance_report, load_signing_key,
                                           orientation_code)
 from uav_depth.daemon.mavlink_enums import mavutil
-from uav_depth.daemon.ranging import Estimate, Measurement, RangeLimits
+from uav_depth.core.ranging import Measurement, RangeLimits
+from uav_depth.daemon.estimate import Estimate
 
 from mavlink_peer import Receiver, free_port
 

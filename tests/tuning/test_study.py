@@ -131,7 +131,7 @@ def test_flown_fitness_scores_the_map_over_the_matched_region_and_the_branch_in_
     import dataclasses
 
     from uav_depth.core.disparity import flight_pipeline
-    from uav_depth.daemon.ranging import resolve_roi
+    from uav_depth.core.ranging import resolve_roi
     from uav_depth.tuning import metrics
     from uav_depth.tuning.objective import BRANCH_PX_PER_PCT, bench, branch_reading, flown_map
 
