@@ -64,10 +64,9 @@ from uav_depth.sim.sweep import VARIANTS  # noqa: E402
 # settings into the core, declared pipelines), so that an older commit can be recorded to compare with.
 try:
     from uav_depth.core.disparity import FAITHFUL, MEASURED
+    from uav_depth.core.params.flight import flight_params
     from uav_depth.core.ranging import Ranger, RangingConfig, default_roi
     from uav_depth.daemon.estimate import Estimate
-
-    flight_params = benchmark.flight_params  # type: ignore[attr-defined]
 
     def pipeline(params: Any, smooth: bool) -> DisparityPipeline:
         return DisparityPipeline(params, FAITHFUL if smooth else MEASURED)

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import pytest
 import yaml
 
-from uav_depth.cli.benchmark import flight_params
+from uav_depth.core.params.flight import flight_params
 from uav_depth.core.params import save_params
 from uav_depth.daemon.mavlink_enums import mavutil
 from uav_depth.core.ranging import RangingConfig

@@ -204,18 +204,6 @@ def test_disparity_search_range_from_working_distance():
         disparity_search_range(700.0, 0.063, 0.01)
 
 
-def test_flight_parameter_file_is_the_documented_settings():
-    """deploy/params-flight.yaml is what benchmark.flight_params() says (regenerate it if this fails)."""
-    from pathlib import Path
-
-    from uav_depth.cli.benchmark import flight_params
-
-    path = Path(__file__).resolve().parents[2] / "deploy" / "params-flight.yaml"
-    flight = load_params(path)
-    assert flight == flight_params()
-    assert flight.sgbm.mode == "sgbm_3way" and flight.compute.scale == 0.5 and flight.compute.grey
-
-
 _MATCH_AT_BOUND = """
 import sys, numpy as np
 from uav_depth.core.disparity import flight_pipeline
