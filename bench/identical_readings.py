@@ -14,7 +14,9 @@ The readings are those of:
 
 - ``near``: bench/near_sweep.py's sweep (both parameter sets, the three variants,
   seeds 0-4, 1 cm from 0.05 m to the flight file's far working distance; renders
-  are cached as near_sweep caches them);
+  are cached as near_sweep caches them). The whole sweep is about 1.2 CPU-s a frame
+  for 4440 frames; ``--near-dense-to-m 0.5 --near-far-step-m 0.05`` keeps 1 cm steps
+  where the too-close rules act and 5 cm beyond (1440 frames);
 - ``leafy``: bench/leafy_suite.py's 30 scenes, both parameter sets;
 - ``real``: bench/real_ranging.py's 17 Middlebury pairs (``--data``), both parameter
   sets, and the reference ranging on the ground truth;
@@ -23,6 +25,7 @@ The readings are those of:
   settings, and its ranging on the exact disparity.
 
     .venv/bin/python bench/identical_readings.py --out before.json          # every set, full size
+    .venv/bin/python bench/identical_readings.py --out before.json --near-dense-to-m 0.5 --near-far-step-m 0.05
     .venv/bin/python bench/identical_readings.py --out q.json --near-seeds 1 --near-step-m 0.1
     .venv/bin/python bench/identical_readings.py --compare before.json after.json
 
@@ -115,13 +118,23 @@ def exact_result(disparity: np.ndarray) -> DisparityResult:
     return DisparityResult(d, d, None)
 
 
-def _near_part(job: tuple[str, int, float, bool]) -> list[tuple[str, dict]]:
+def near_distances(step_m: float, dense_to_m: float | None = None, far_step_m: float | None = None) -> list[float]:
+    """bench/near_sweep.py's distances (0.05 m to the flight file's far working distance, ``step_m`` apart); with
+    ``dense_to_m``, ``step_m`` apart up to there (where the too-close rules act) and ``far_step_m`` beyond."""
+    far = scenebench.flight_max_range_m()
+    if dense_to_m is None:
+        return near_sweep.distances(0.05, far, step_m)
+    near = near_sweep.distances(0.05, dense_to_m, step_m)
+    return near + [d for d in near_sweep.distances(dense_to_m, far, far_step_m or step_m) if d > near[-1] + 1e-9]
+
+
+def _near_part(job: tuple[str, int, list[float], bool]) -> list[tuple[str, dict]]:
     """One (variant, seed) of the near sweep: every distance and parameter set, pipeline and exact."""
-    variant, seed, step_m, cache = job
+    variant, seed, dists, cache = job
     cal = SceneConfig()
     ms = {name: scenebench.Measurer(p, cal) for name, p in scenebench.param_sets(("baseline", "flight")).items()}
     out = []
-    for d in near_sweep.distances(0.05, scenebench.flight_max_range_m(), step_m):
+    for d in dists:
         frame = scenebench.render_cached(VARIANTS[variant](d, seed), cache)
         for name, meas in ms.items():
             key = f"{name}/{variant}/s{seed}/{d:.2f}m"
@@ -131,11 +144,11 @@ def _near_part(job: tuple[str, int, float, bool]) -> list[tuple[str, dict]]:
     return out
 
 
-def near_readings(seeds: int, step_m: float, variants: list[str], cache: bool,
+def near_readings(seeds: int, dists: list[float], variants: list[str], cache: bool,
                   jobs: int = 1) -> Iterator[tuple[str, dict]]:
     """bench/near_sweep.py's sweep: every (parameter set, variant, seed, distance), pipeline and exact; ``jobs``
     processes, one (variant, seed) each at a time (each reading is computed alone: the same values)."""
-    parts = [(v, s, step_m, cache) for v in variants for s in range(seeds)]
+    parts = [(v, s, dists, cache) for v in variants for s in range(seeds)]
     if jobs <= 1:
         for part in parts:
             yield from _near_part(part)
@@ -147,7 +160,8 @@ def near_readings(seeds: int, step_m: float, variants: list[str], cache: bool,
 
 def leafy_readings(n_scenes: int, cache: bool) -> Iterator[tuple[str, dict]]:
     """bench/leafy_suite.py's scenes: every (parameter set, scene), pipeline and exact."""
-    ms = {name: scenebench.Measurer(p, SceneConfig()) for name, p in scenebench.param_sets(("baseline", "flight")).items()}
+    sets = scenebench.param_sets(("baseline", "flight"))
+    ms = {name: scenebench.Measurer(p, SceneConfig()) for name, p in sets.items()}
     for i in range(n_scenes):
         frame = scenebench.render_cached(leafy_suite.scene(i), cache)
         for name, meas in ms.items():
@@ -192,14 +206,14 @@ def bench_readings() -> Iterator[tuple[str, dict]]:
 
 def record(args: argparse.Namespace) -> dict[str, Any]:
     makers: dict[str, Callable[[], Iterator[tuple[str, dict]]]] = {
-        "near": lambda: near_readings(args.near_seeds, args.near_step_m, args.near_variants, not args.no_cache,
-                                      args.jobs),
+        "near": lambda: near_readings(args.near_seeds, dists, args.near_variants, not args.no_cache, args.jobs),
         "leafy": lambda: leafy_readings(args.leafy_scenes, not args.no_cache),
         "real": lambda: real_readings(args.data),
         "bench": bench_readings,
     }
+    dists = near_distances(args.near_step_m, args.near_dense_to_m, args.near_far_step_m)
     out: dict[str, Any] = {"command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
-                           "options": {"near_seeds": args.near_seeds, "near_step_m": args.near_step_m,
+                           "options": {"near_seeds": args.near_seeds, "near_distances_m": dists,
                                        "near_variants": args.near_variants, "leafy_scenes": args.leafy_scenes,
                                        "data": str(args.data)},
                            "readings": {}, "seconds": {}}
@@ -253,6 +267,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sets", nargs="+", default=list(SETS), choices=SETS)
     ap.add_argument("--near-seeds", type=int, default=5, help="near sweep seeds 0..N-1 (default 5, as near_sweep)")
     ap.add_argument("--near-step-m", type=float, default=0.01, help="near sweep step (default 0.01, as near_sweep)")
+    ap.add_argument("--near-dense-to-m", type=float, default=None,
+                    help="near sweep: --near-step-m apart up to this distance only, --near-far-step-m beyond")
+    ap.add_argument("--near-far-step-m", type=float, default=None, help="near sweep step beyond --near-dense-to-m")
     ap.add_argument("--near-variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     ap.add_argument("--leafy-scenes", type=int, default=30, help="leafy suite scenes (default 30, as leafy_suite)")
     ap.add_argument("--data", type=Path, default=real_ranging.DEFAULT_DATA, help="the 17 Middlebury 2006 pairs")
