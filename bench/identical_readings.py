@@ -204,7 +204,8 @@ def bench_readings() -> Iterator[tuple[str, dict]]:
         yield f"exact/frame{i}", reading(r.measure(DisparityResult(d, d, np.ones_like(d))), r.limits)
 
 
-def record(args: argparse.Namespace) -> dict[str, Any]:
+def record(args: argparse.Namespace, save: Callable[[dict[str, Any]], None]) -> dict[str, Any]:
+    """Every set's readings; ``save(record)`` after each set (a long run keeps what it has measured)."""
     makers: dict[str, Callable[[], Iterator[tuple[str, dict]]]] = {
         "near": lambda: near_readings(args.near_seeds, dists, args.near_variants, not args.no_cache, args.jobs),
         "leafy": lambda: leafy_readings(args.leafy_scenes, not args.no_cache),
@@ -227,6 +228,7 @@ def record(args: argparse.Namespace) -> dict[str, Any]:
         out["seconds"][name] = round(time.monotonic() - t0, 1)
         print(f"{name}: {len(got)} readings in {out['seconds'][name]:.0f} s (load {os.getloadavg()[0]:.1f})",
               file=sys.stderr, flush=True)
+        save(out)
     return out
 
 
@@ -280,8 +282,9 @@ def main(argv: list[str] | None = None) -> int:
         return compare(*args.compare)
     if args.out is None:
         ap.error("--out FILE (record) or --compare A B")
-    out = record(args)
-    args.out.write_text(json.dumps(out, indent=0, sort_keys=True))
+    if "real" in args.sets and not (args.data / real_ranging.SCENES[0] / "disp1.png").is_file():
+        ap.error(f"no Middlebury 2006 scenes at {args.data}: pass --data DIR (or leave out the real set)")
+    out = record(args, lambda rec: args.out.write_text(json.dumps(rec, indent=0, sort_keys=True)))
     total = sum(len(v) for v in out["readings"].values())
     print(f"{total} readings written to {args.out}")
     return 0
