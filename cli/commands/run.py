@@ -56,7 +56,7 @@ def setup_logging(level: str) -> None:
 
 def exit_code(exc) -> int:
     """The exit code (module docstring) for a failure of ``run``, ``run --check`` or ``sitl``: the one mapping."""
-    from uav_depth.cli.main import EXIT_CONFIG, EXIT_ERROR, EXIT_UNAVAILABLE
+    from uav_depth.cli.exit_codes import EXIT_CONFIG, EXIT_ERROR, EXIT_UNAVAILABLE
     from uav_depth.core.errors import CalibrationError, ConfigError, DependencyError, FileFormatError, SourceError
 
     if isinstance(exc, (ConfigError, CalibrationError, FileFormatError, DependencyError)):

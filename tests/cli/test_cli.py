@@ -6,7 +6,8 @@ import sys
 
 import pytest
 
-from uav_depth.cli.main import COMMANDS, EXIT_CONFIG
+from uav_depth.cli.exit_codes import EXIT_CONFIG
+from uav_depth.cli.main import COMMANDS
 
 
 def cli(*args, check=True):
