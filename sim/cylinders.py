@@ -1,14 +1,15 @@
 """Ray casting of the scene's solid cylinders (trunk, branches, twigs) into one view, all at once.
 
-Cast one by one, each cylinder cost about sixty numpy calls per view, most of them on a few
-thousand pixels: the calls, not the arithmetic, were most of a SITL frame's render. Here the
-culling, the hit test and the surface (texture, shading) run once over every (cylinder,
+Cast one by one, each cylinder costs about sixty numpy calls per view, most of them on a few
+thousand pixels: the calls, not the arithmetic, would be most of a SITL frame's render. Here
+the culling, the hit test and the surface (texture, shading) run once over every (cylinder,
 candidate pixel) pair of a view, with each cylinder's constants spread over its pairs.
 
-The result is the one-by-one cast's bit for bit (tests/sim/test_scene.py compares them):
+The result is bit for bit what casting each cylinder alone, in turn, gives (tests/sim/test_scene.py
+compares them):
 
-- the per-pair arithmetic is the same IEEE operations on the same dtypes (a float32
-  constant per pair where the one-by-one cast had a float32 scalar, float64 where float64);
+- a pair's arithmetic does not depend on the other pairs: the same IEEE operations on the same
+  dtypes (each cylinder's float32 constants spread over its pairs, float64 where float64);
 - cylinders are cast in scene order and a later one takes a pixel only when strictly nearer,
   so the nearest wins and, on a tie, the first (the depth test is the only step done per cylinder);
 - the surface is computed for the pixels each cylinder finally owns; texture samples are
