@@ -20,6 +20,7 @@ Each check lists every offender by name and size in its failure message.
 from __future__ import annotations
 
 import ast
+import functools
 import re
 import subprocess
 import sys
@@ -156,6 +157,12 @@ def describe_cycle(graph: grimp.ImportGraph, component: list[str]) -> str:
     return "\n".join(edges)
 
 
+@functools.cache
+def project_graph() -> tuple[grimp.ImportGraph, list[tuple[str, str, int, str]]]:
+    """:func:`build_graph` of the five rooms, built once per session (the tests only read it)."""
+    return build_graph(ROOMS)
+
+
 def _room(module: str) -> str:
     return next(room for room in ROOMS if module == room or module.startswith(room + "."))
 
@@ -176,16 +183,24 @@ def test_the_contracts_waive_nothing():
 
 
 def test_no_import_cycle_late_and_by_name_imports_included():
-    graph, _ = build_graph(ROOMS)
+    graph, _ = project_graph()
     found = cycles(graph)
     assert found == [], "import cycles:\n" + "\n".join(describe_cycle(graph, c) for c in found)
 
 
 def test_imports_by_name_point_down():
-    _, added = build_graph(ROOMS)
+    _, added = project_graph()
     assert ("uav_depth.cli.main", "uav_depth.cli.commands.run") in {(a, b) for a, b, _, _ in added}
     up = [f"{a} -> {b} (line {line}: {text})" for a, b, line, text in added if _room(b) not in MAY_IMPORT[_room(a)]]
     assert up == [], "imports by name against the layering:\n" + "\n".join(up)
+
+
+def test_the_exit_codes_are_a_leaf():
+    """The commands return them and cli.main loads the commands: they import nothing, so nothing cycles through them."""
+    graph, _ = project_graph()
+    assert graph.find_modules_directly_imported_by("uav_depth.cli.exit_codes") == set()
+    importers = graph.find_modules_that_directly_import("uav_depth.cli.main")
+    assert not {m for m in importers if m.startswith("uav_depth.cli.commands.")}, importers
 
 
 def _package(tmp_path, monkeypatch, files: dict[str, str]) -> dict[str, Path]:
