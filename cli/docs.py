@@ -62,6 +62,11 @@ def refresh(text: str) -> str:
     return _BLOCK.sub(repl, text)
 
 
+def without_generated(text: str) -> str:
+    """``text`` with the body of every generated block left out: what was written by hand."""
+    return _BLOCK.sub(lambda m: m.group(1) + m.group(4), text)
+
+
 def blocks(text: str) -> list[str]:
     """Names of the generated blocks in ``text``."""
     return [m.group(2) for m in _BLOCK.finditer(text)]

@@ -2,8 +2,8 @@
 
 Distances in metres, angles in degrees, intensities on the 0..255 scale. Same
 config, same pixels. The keys after ``seed`` (foliage, sky, shadows, the eyes'
-differences) are off by default, so the default scene is what it always was;
-docs/scenes.md says what each adds and why.
+differences) are off by default, so figures measured on the default scene stay
+reproducible; docs/scenes.md says what each adds and why.
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ def configure(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import sys
 
-    from uav_depth.cli.main import EXIT_CONFIG
+    from uav_depth.cli.exit_codes import EXIT_CONFIG
     from uav_depth.core.errors import FileFormatError
     from uav_depth.core.params import DEFAULT_PARAMS, dump_params, load_params, params_table_markdown
 

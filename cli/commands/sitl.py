@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
-    from uav_depth.cli.main import EXIT_CONFIG, EXIT_UNAVAILABLE
+    from uav_depth.cli.exit_codes import EXIT_CONFIG, EXIT_UNAVAILABLE
     from uav_depth.cli.sources import SOURCES
     from uav_depth.daemon.config import load_run_config
     from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError

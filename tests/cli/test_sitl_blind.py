@@ -24,7 +24,7 @@ import yaml
 
 from mavlink_peer import free_port
 from uav_depth.cli.benchmark import flight_params
-from uav_depth.cli.main import EXIT_CONFIG, EXIT_UNAVAILABLE
+from uav_depth.cli.exit_codes import EXIT_CONFIG, EXIT_UNAVAILABLE
 from uav_depth.core.params import save_params
 from uav_depth.daemon.mavlink_enums import mavutil
 

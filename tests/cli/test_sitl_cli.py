@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from uav_depth.cli.benchmark import flight_params
-from uav_depth.cli.main import EXIT_CONFIG
+from uav_depth.cli.exit_codes import EXIT_CONFIG
 from uav_depth.core.params import save_params
 from uav_depth.daemon.mavlink_enums import mavutil
 

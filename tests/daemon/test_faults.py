@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 import yaml
 
-from uav_depth.cli.main import EXIT_CONFIG, EXIT_UNAVAILABLE
+from uav_depth.cli.exit_codes import EXIT_CONFIG, EXIT_UNAVAILABLE
 from uav_depth.core.params import DEFAULT_PARAMS, dump_params
 from uav_depth.core.session import SessionWriter
 from uav_depth.sim.scene import Scene, SceneConfig

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from uav_depth.cli.main import EXIT_CONFIG
+from uav_depth.cli.exit_codes import EXIT_CONFIG
 
 REPO = Path(__file__).resolve().parents[2]
 DEPLOY = REPO / "deploy"
