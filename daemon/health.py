@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Iterator, Mapping
 
 from uav_depth.daemon.config import ServiceConfig
-from uav_depth.daemon.mavlink_out import SendClock
+from uav_depth.daemon.link.clock import SendClock
 from uav_depth.daemon.notify import Notifier
 from uav_depth.daemon.ranging import Estimate
 

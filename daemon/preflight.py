@@ -1,7 +1,7 @@
 """``uav-depth run --check``: load everything ``run`` would load, start nothing.
 
 The same functions as the service, in the same order of concern: the signing key
-(:func:`~uav_depth.daemon.mavlink_out.load_signing_key`), the log directory
+(:func:`~uav_depth.daemon.link.signing.load_signing_key`), the log directory
 (:func:`~uav_depth.daemon.framelog.ensure_log_dir`), the calibration
 (:func:`~uav_depth.daemon.stage.resolve_calibration`), the parameter file with every
 rule the daemon applies at start-up (:meth:`~uav_depth.daemon.stage.StageHolder.open`:
@@ -26,7 +26,7 @@ from uav_depth.core.params import load_params
 from uav_depth.core.rectify import Rectifier
 from uav_depth.daemon.config import RunConfig
 from uav_depth.daemon.framelog import ensure_log_dir, free_mb
-from uav_depth.daemon.mavlink_out import load_signing_key
+from uav_depth.daemon.link.signing import load_signing_key
 from uav_depth.daemon.ranging import resolve_roi
 from uav_depth.daemon.sources import FrameSource
 from uav_depth.daemon.sources.oak import find_devices, import_depthai

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import pytest
 
-from uav_depth.daemon.mavlink_enums import mavutil
+from uav_depth.daemon.link.vocabulary import mavutil
 
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLE = REPO / "deploy/examples/sitl.yaml"

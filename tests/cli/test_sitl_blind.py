@@ -26,7 +26,7 @@ from mavlink_peer import free_port
 from uav_depth.cli.benchmark import flight_params
 from uav_depth.cli.main import EXIT_CONFIG, EXIT_UNAVAILABLE
 from uav_depth.core.params import save_params
-from uav_depth.daemon.mavlink_enums import mavutil
+from uav_depth.daemon.link.vocabulary import mavutil
 
 WITHHOLD_S = float(os.environ.get("TEST_SITL_WITHHOLD_S", "60"))
 TREE_NED = (2.0, 0.0, -3.0)
