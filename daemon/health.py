@@ -96,11 +96,12 @@ class Health:
 
         Stuck: one frame in the stereo stage, or one read/open of the source, for longer
         than ``service.stall_timeout_s``. Then WATCHDOG=1 stops and systemd restarts us.
+        The send clock's link counts as a loop: its I/O thread (``link.alive``).
         """
         now = time.monotonic() if now is None else now
         limit = self.config.stall_timeout_s
         busy, reading = self.busy_since, self.source_since
-        return (clock is not None and clock.alive
+        return (clock is not None and clock.alive and clock.link.alive
                 and all(t.is_alive() for t in threads.values())
                 and (busy is None or now - busy < limit)
                 and (reading is None or now - reading < limit))

@@ -87,6 +87,10 @@ class Pump:
                     self.close_transport()
                     self._lines(logging.WARNING, "lost", "mavlink %s: link lost (%s); reconnecting",
                                 self.config.url, f"{type(exc).__name__}: {exc}")
+            except Exception:   # a bug in one turn must not end the link: said, and the next turn goes on
+                self._lines(logging.ERROR, "turn", "mavlink %s: an I/O turn failed", self.config.url,
+                            exc_info=True)
+                stop.wait(0.01)
         if self._t is not None:
             try:
                 self._write_queue(self._t)    # the last words (STATUSTEXT, HEARTBEAT poweroff)
@@ -183,7 +187,13 @@ class Pump:
         self._queue.put_back(waiting)
 
     def _write_one(self, t: Transport, o: Out, now: float) -> None:
-        buf = self.signing.pack(o.build(self.signing.tx))
+        try:
+            buf = self.signing.pack(o.build(self.signing.tx))
+        except Exception:   # a builder's bug drops its message, never the I/O thread
+            self.count.build_errors += 1
+            self._lines(logging.ERROR, "build", "mavlink %s: a %s message could not be built and was dropped",
+                        self.config.url, o.kind or "queued", exc_info=True)
+            return
         if not t.write(buf, o.deadline, now):
             self.count.dropped += 1
             return

@@ -287,3 +287,55 @@ def test_bytes_the_kernel_holds_past_their_deadline_are_discarded_with_a_reset()
         pub.close()
         link.close()
         peer.close()
+
+
+def test_a_message_whose_builder_raises_is_dropped_and_the_link_goes_on():
+    # issue 44 item 3: builders run on the I/O thread, which caught only ConnectionError/OSError: one bad
+    # builder ended the thread, and every later message was queued for nobody
+    port = free_port()
+    peer = Receiver(f"udpin:127.0.0.1:{port}", sysid=255, compid=190)
+    link = MavlinkLink(MavlinkConfig(url=f"udpout:127.0.0.1:{port}")).start()
+    try:
+        assert link.wait_connected(2)
+        link.send(lambda mav: mav.no_such_message_encode(), kind="broken")         # a builder with a bug
+        deadline = time.monotonic() + 5
+        while "after the bug" not in peer.texts() and time.monotonic() < deadline:
+            link.statustext("after the bug")
+            time.sleep(0.05)
+        assert "after the bug" in peer.texts()
+        assert link.alive and link.count.build_errors == 1
+    finally:
+        link.close()
+        peer.close()
+    assert not link.alive                                          # closed: the thread is gone
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")
+def test_the_service_is_unhealthy_once_the_link_thread_is_dead():
+    # issue 44 item 3: with the I/O thread dead, `connected` stayed True and the watchdog stayed fed
+    from uav_depth.daemon.config import ServiceConfig
+    from uav_depth.daemon.health import Health
+    from uav_depth.daemon.notify import Notifier
+
+    port = free_port()
+    peer = Receiver(f"udpin:127.0.0.1:{port}", sysid=1, compid=1, autopilot=True)
+    cfg = MavlinkConfig(url=f"udpout:127.0.0.1:{port}")
+    link = MavlinkLink(cfg).start()
+    clock = SendClock(link, cfg, 0.3, estimate=lambda: None, limits=lambda: LIMITS, state=lambda: "boot").start()
+    health = Health(ServiceConfig(), Notifier(), lambda: "")
+    try:
+        assert link.wait_connected(2)
+        assert health.healthy(clock, {})
+
+        def dies(msg):            # the one seam: something on the I/O thread that even a catch-all lets through
+            raise SystemExit("the I/O thread ends here")
+        link.subscribe("HEARTBEAT", dies)
+        deadline = time.monotonic() + 10
+        while link.alive and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert not link.alive
+        assert clock.alive and not health.healthy(clock, {})       # the watchdog is no longer fed
+    finally:
+        clock.stop()
+        link.close()
+        peer.close()
