@@ -18,7 +18,7 @@ from typing import Callable
 
 from uav_depth.daemon.config import MavlinkConfig
 from uav_depth.daemon.link.conditions import Condition
-from uav_depth.daemon.link.contract import DistanceReport, distance_report
+from uav_depth.daemon.link.contract import DistanceReport, distance_report, stamp_after, stamp_before
 from uav_depth.daemon.link.endpoint import MavlinkLink
 from uav_depth.daemon.link.vocabulary import HEARTBEAT_PERIOD_S, SENSOR_TYPES, orientation_code
 from uav_depth.daemon.ranging import Estimate, RangeLimits
@@ -42,7 +42,8 @@ class SendClock:
     None while it measures.
 
     Each estimate is sent at most once, with time_boot_ms = its capture time; an estimate whose
-    stamp is not later than the last one sent is never sent; at most ``mavlink.rate_hz`` DISTANCE_SENSOR per second (a newer estimate
+    stamp is not later than the last one sent (serial-number order: right across the 49.7-day
+    wrap) is never sent; at most ``mavlink.rate_hz`` DISTANCE_SENSOR per second (a newer estimate
     replaces one waiting for its slot). Blind: nothing is sent. ``mavlink.proximity_commit``:
     each reading is followed by its copy stamped 1 ms earlier (not counted in ``ticks``).
     """
@@ -67,7 +68,7 @@ class SendClock:
         self._notified = False
         self._thread: threading.Thread | None = None
         self._last_sent: Estimate | None = None
-        self._last_stamp = -1
+        self._last_stamp: int | None = None
         self._last_send_t = -math.inf
         self._told: Condition | None = None       # the condition the last STATUSTEXT announced
         self._told_t = -math.inf
@@ -107,7 +108,7 @@ class SendClock:
         self.condition = report.condition
         self.last_report = report
         if (report.sent and est is not None and est is not self._last_sent
-                and report.time_boot_ms > self._last_stamp
+                and (self._last_stamp is None or stamp_after(report.time_boot_ms, self._last_stamp))
                 and now - self._last_send_t >= 1.0 / self.config.rate_hz):
             self._send(report, est)
             self._last_sent, self._last_stamp, self._last_send_t = est, report.time_boot_ms, now
@@ -120,11 +121,11 @@ class SendClock:
     def _send(self, report: DistanceReport, est: Estimate) -> None:
         args = (self.sensor_type, self.config.sensor_id, self.orientation, est.t_capture, self.max_age_s)
         self.link.distance_sensor(report, *args)
-        if self.config.proximity_commit and report.time_boot_ms > 0:
+        if self.config.proximity_commit:
             # ArduPilot's MAVLink proximity backend keeps a reading pending until a message with
             # another time_boot_ms arrives: this copy (the same measurement, stamped 1 ms earlier,
             # so never newer than it is) closes it now instead of a frame later.
-            copy = dataclasses.replace(report, time_boot_ms=report.time_boot_ms - 1)
+            copy = dataclasses.replace(report, time_boot_ms=stamp_before(report.time_boot_ms))
             self.link.distance_sensor(copy, *args, kind=COMMIT_KIND)
 
     def _announce(self, now: float) -> None:

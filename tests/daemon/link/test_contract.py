@@ -118,3 +118,13 @@ def test_each_condition_sends_what_its_table_row_says(cond):
     assert ("| **nothing**" in row) == (not cond.sends)
     text, severity = cond.statustext
     assert text.startswith("uav-depth: ") and len(text) <= 50 and severity in ("info", "warning")
+
+
+@pytest.mark.parametrize("a,b,after", [(1, 0, True), (0, 1, False), (5, 5, False),
+                                       (0, 2**32 - 1, True), (3, 2**32 - 10, True), (2**32 - 1, 0, False),
+                                       (2**31 - 1, 0, True), (2**31 + 1, 0, False)])
+def test_stamps_are_ordered_across_the_32_bit_wrap(a, b, after):
+    from uav_depth.daemon.link.contract import stamp_after, stamp_before
+
+    assert stamp_after(a, b) is after
+    assert stamp_before(0) == 2**32 - 1 and stamp_after(0, stamp_before(0))

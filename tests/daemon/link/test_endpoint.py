@@ -339,3 +339,37 @@ def test_the_service_is_unhealthy_once_the_link_thread_is_dead():
         clock.stop()
         link.close()
         peer.close()
+
+
+def test_readings_keep_flowing_across_the_49_7_day_wrap_of_time_boot_ms():
+    # issue 44 item 8: time_boot_ms is masked to 32 bits and was compared with '>': after 49.7 days of
+    # uptime (2^32 ms) every new stamp looked older than the last one sent, and nothing was sent again
+    port = free_port()
+    peer = Receiver(f"udpin:127.0.0.1:{port}", sysid=255, compid=190)
+    cfg = MavlinkConfig(url=f"udpout:127.0.0.1:{port}", rate_hz=100, proximity_commit=True)
+    link = MavlinkLink(cfg).start()
+    pub = Publisher(period_s=0.02)
+    clock = SendClock(link, cfg, 0.3, estimate=lambda: pub.est, limits=lambda: LIMITS, state=lambda: "active")
+    clock.t_start = time.monotonic() - (2**32 - 600) / 1000.0     # the stamps wrap 0.6 s from now
+    clock.start()
+    try:
+        assert peer.wait(lambda: any(m.time_boot_ms < 10_000 and m.time_boot_ms != 2**32 - 1
+                                     for m in peer.of("DISTANCE_SENSOR")), 10)
+        t_wrap = time.monotonic()
+        time.sleep(1.0)                                             # and a second of readings after it
+    finally:
+        clock.stop()
+        pub.close()
+        link.close()
+        peer.close()
+    from uav_depth.daemon.link.contract import boot_ms
+
+    captured = {boot_ms(e.t_capture, clock.t_start) for e in pub.published}
+    ds = peer.of("DISTANCE_SENSOR")
+    readings = [m for m in ds if m.time_boot_ms in captured]
+    copies = [m for m in ds if m.time_boot_ms not in captured]
+    assert all((c.time_boot_ms + 1) % 2**32 in captured for c in copies)     # each copy 1 ms before its reading
+    after = [m for _, m in peer.timed("DISTANCE_SENSOR", since=t_wrap) if m.time_boot_ms in captured]
+    assert any(m.time_boot_ms > 2**31 for m in readings) and len(after) >= 20, len(after)   # ~50 in that second
+    unwrapped = [t + (2**32 if t < 2**31 else 0) for t in (m.time_boot_ms for m in readings)]
+    assert all(b > a for a, b in zip(unwrapped, unwrapped[1:]))     # strictly in order across the wrap
