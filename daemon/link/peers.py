@@ -128,10 +128,6 @@ class ReadGate:
 
     def decide(self, o: Out, now: float) -> Verdict:
         """Whether measurement ``o`` may be written now."""
-        if self.answers == 0:                       # a peer that never answered is not gated
-            if self._probe is None or now - self._probe[1] > PROBE_AGAIN_S:
-                self._request(now)                  # does this peer answer? then it is gated
-            return Verdict.WRITE
         if o.probe is None:
             if self._probe is not None and now - self._probe[1] >= PROBE_TIMEOUT_S:
                 if now - self._probe[1] >= PROBE_AGAIN_S:

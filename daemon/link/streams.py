@@ -66,6 +66,8 @@ class Stream(Transport):
     def _flush_tail(self, now: float | None) -> bool:
         """Finish the frame the kernel took only part of; False while it cannot (or must not: past its
         deadline, its end would complete an old reading at the peer)."""
+        if self._tail and self.tail_expired(now):
+            return False
         while self._tail:
             try:
                 n = self._send(self._tail)

@@ -152,6 +152,45 @@ def test_a_stalled_tcp_peer_gets_no_old_distances_and_its_return_is_taken_at_onc
             peer.close()
 
 
+@pytest.mark.parametrize("case", ["answers no TIMESYNC", "answers TIMESYNC unsigned, signing on"])
+def test_a_tcp_peer_that_cannot_show_it_reads_gets_no_old_readings(tmp_path, case):
+    # issue 44 item 4: a peer that does not answer TIMESYNC was written to directly; stopped for 10 s it
+    # received 188 readings older than 300 ms on resume (192 with signing on and the answers unsigned,
+    # which signing drops). On TCP a measurement now goes out only after an answer the link accepts.
+    port = free_port(socket.SOCK_STREAM)
+    mavlink = {}
+    if "signing" in case:
+        key = tmp_path / "mavlink.key"
+        key.write_text("correct horse battery staple\n")
+        key.chmod(0o600)
+        mavlink["signing_key_file"] = str(key)
+    daemon = Daemon(tmp_path, f"tcpin:127.0.0.1:{port}", mavlink=mavlink)
+    peer = None
+    try:
+        deadline = time.monotonic() + 60
+        while peer is None:
+            try:
+                peer = Receiver(f"tcp:127.0.0.1:{port}", autopilot="unsigned" in case)
+            except OSError:
+                assert time.monotonic() < deadline, daemon.stderr()[-2000:]
+                time.sleep(0.2)
+        wait_for(lambda: "ready:" in daemon.stderr() and len(peer.of("HEARTBEAT")) >= 3, 90, daemon,
+                 "start-up and 3 heartbeats")
+        peer.pause()                                   # SIGSTOP-like: it reads and answers nothing
+        time.sleep(4.0)
+        peer.resume()
+        t_resume = time.monotonic()
+        wait_for(lambda: len(peer.of("HEARTBEAT", since=t_resume)) >= 2, 30, daemon, "heartbeats after resume")
+        time.sleep(1.0)
+        old = [age_ms(t, m) for t, m in peer.timed("DISTANCE_SENSOR", since=t_resume) if age_ms(t, m) > MAX_AGE_MS]
+    finally:
+        daemon.close()
+        if peer is not None:
+            peer.close()
+    assert old == [], f"{len(old)} readings older than {MAX_AGE_MS:g} ms after the resume, oldest {max(old):.0f} ms"
+    assert "answers no TIMESYNC request" in daemon.stderr()        # the operator is told why nothing goes out
+
+
 def test_the_autopilot_coming_back_on_tcp_is_reconnected_within_a_second(tmp_path):
     # item 2: the daemon as TCP client (SITL's TCP port); the reconnect back-off used to reach 10 s
     port = free_port(socket.SOCK_STREAM)

@@ -261,31 +261,74 @@ def test_serial_link_through_a_pseudo_terminal():
         os.close(slave)
 
 
-def test_bytes_the_kernel_holds_past_their_deadline_are_discarded_with_a_reset():
-    # a TCP peer whose window is closed (tiny receive buffer, never reads, never answers TIMESYNC):
-    # what waits in our kernel would arrive old, so the connection is reset instead
-    port = free_port(socket.SOCK_STREAM)
-    cfg = MavlinkConfig(url=f"tcpin:127.0.0.1:{port}", rate_hz=200)
-    link = MavlinkLink(cfg).start()
-    pub = Publisher(period_s=0.005)
-    clock = SendClock(link, cfg, 0.2, estimate=lambda: pub.est, limits=lambda: LIMITS, state=lambda: "active").start()
+def _stalled_tcp_pair(port):
+    """A TcpServer whose one peer has a tiny receive buffer and does not read (yet)."""
+    from uav_depth.daemon.link.streams import TcpServer
+
+    server = TcpServer("127.0.0.1", port)
     peer = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     peer.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1024)
+    peer.connect(("127.0.0.1", port))
+    deadline = time.monotonic() + 5
+    while server.conn is None and time.monotonic() < deadline:
+        server.poll()
+        time.sleep(0.01)
+    assert server.conn is not None
+    return server, peer
+
+
+def _drain(peer, timeout_s=0.5) -> bytes:
+    peer.settimeout(timeout_s)
+    got = b""
     try:
-        assert link.wait_connected(2)
-        peer.connect(("127.0.0.1", port))
-        deadline = time.monotonic() + 20
-        while link.count.discards == 0 and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert link.count.discards >= 1
+        while chunk := peer.recv(65536):
+            got += chunk
+    except (socket.timeout, BlockingIOError):
+        pass
+    return got
+
+
+def test_bytes_the_kernel_holds_past_their_deadline_are_discarded_with_a_reset():
+    # a TCP peer whose window is closed: what waits in our kernel would arrive old, so the connection is
+    # reset instead (the link then reconnects)
+    server, peer = _stalled_tcp_pair(free_port(socket.SOCK_STREAM))
+    try:
+        now = time.monotonic()
+        deadline = now + 0.2
+        while server.write(b"\xfd" + bytes(199), deadline, now):      # until the kernel holds no more
+            pass
+        assert not server.overdue(now)
+        assert server.overdue(deadline + 0.01)
+        server.discard()
         peer.settimeout(2)
         with pytest.raises(ConnectionResetError):       # after what its buffer held: the reset
             while peer.recv(65536):
                 pass
     finally:
-        clock.stop()
-        pub.close()
-        link.close()
+        server.close()
+        peer.close()
+
+
+def test_the_tail_of_a_frame_is_never_written_past_its_deadline():
+    # issue 44 item 4: a frame the kernel took only in part had its tail written whenever the stream took
+    # bytes again, however old the frame was by then: the peer got a whole old reading
+    server, peer = _stalled_tcp_pair(free_port(socket.SOCK_STREAM))
+    frame = b"\xfd" + bytes(998) + b"\x01"                           # one frame, 1000 bytes
+    try:
+        now = time.monotonic()
+        deadline = now + 0.2
+        for _ in range(10_000):                                      # until the kernel takes a frame in part
+            assert server.write(frame, deadline, now), "the kernel filled up exactly at a frame's end; rerun"
+            if server.tail_expired(deadline + 1):
+                break
+        got = _drain(peer)                                           # the peer reads again: room in the pipe
+        late = deadline + 0.01
+        assert not server.write(b"\xfd" + bytes(99), late + 1, late)  # the old frame's tail is not finished
+        assert server.overdue(late)                                  # so the link discards the stream
+        got += _drain(peer)
+        assert len(got) % len(frame) != 0                            # the old frame arrived cut, never whole
+    finally:
+        server.close()
         peer.close()
 
 
