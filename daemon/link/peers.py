@@ -58,16 +58,13 @@ class UdpinOwner:
         self.refused = 0          # datagrams from addresses that may not take the stream
 
     def adopt(self, t: UdpIn) -> None:
-        """A new udpin socket (after a socket error): nobody owns it yet."""
-        self.peer = None
+        """A new udpin socket (after a socket error): the owner stays the owner."""
+        if self.peer is not None:
+            t.bind_peer(self.peer)
 
     def listen(self, t: UdpIn, now: float) -> None:
         """Tell the transport whether datagrams from other addresses are worth reading now."""
-        if t.peer is not None and now - t.peer_heard > PEER_SILENT_S:
-            self.lines(logging.WARNING, "silent", "mavlink %s: autopilot at %s:%d silent for %.0f s; waiting for its "
-                       "HEARTBEAT", self.url, t.peer[0], t.peer[1], PEER_SILENT_S)
-            t.peer = self.peer = None
-        t.hear_strangers = t.peer is None
+        t.hear_strangers = t.peer is None or (self.signing.enabled and now - t.peer_heard > PEER_SILENT_S)
 
     def candidate(self, t: UdpIn, data: bytes, addr: Any) -> Any | None:
         """The autopilot HEARTBEAT that bound ``addr`` (the link dispatches it and starts afresh), or None."""

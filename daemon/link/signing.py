@@ -117,7 +117,7 @@ class Signing:
         self._module = mavlink_module
         self.key = key
         self._system_id, self._component_id = system_id, component_id
-        self._parser_class = mavlink_module.MAVLink
+        self._parser_class = _signed_parser_class(mavlink_module.MAVLink)
         self.tx = self._make(mavlink_module.MAVLink)
         self.rx = self._make(self._parser_class)
         if key is not None:
@@ -143,11 +143,16 @@ class Signing:
 
     def fresh_parser(self) -> Any:
         """A parser with an empty buffer whose signature checks share ``rx``'s memory of every stream."""
-        return self._make(self._parser_class)
+        mav = self._make(self._parser_class)
+        if self.key is not None:
+            mav.signing = self.rx.signing
+        return mav
 
     def reset_stream(self) -> None:
         """A new connection: the byte buffer starts empty; the signing memory stays."""
+        signing = self.rx.signing
         self.rx = self._make(self._parser_class)
+        self.rx.signing = signing
 
     def pack(self, msg: Any) -> bytes:
         """The bytes of ``msg`` (signed when signing), advancing the sequence number."""
