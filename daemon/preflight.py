@@ -1,7 +1,9 @@
 """``uav-depth run --check``: load everything ``run`` would load, start nothing.
 
 The same functions as the service, in the same order of concern: the signing key
-(:func:`~uav_depth.daemon.link.signing.load_signing_key`), the log directory
+(:func:`~uav_depth.daemon.link.signing.load_signing_key`), the MAVLink link (opened
+and closed at once: :func:`~uav_depth.daemon.link.urls.try_open`; one that cannot be
+opened, which ``run`` would retry for ever, raises LinkError: exit 69), the log directory
 (:func:`~uav_depth.daemon.framelog.ensure_log_dir`), the calibration
 (:func:`~uav_depth.daemon.stage.resolve_calibration`), the parameter file with every
 rule the daemon applies at start-up (:meth:`~uav_depth.daemon.stage.StageHolder.open`:
@@ -21,12 +23,13 @@ import os
 from dataclasses import dataclass, field
 
 from uav_depth.core.calibration import Calibration
-from uav_depth.core.errors import SourceError
+from uav_depth.core.errors import LinkError, SourceError
 from uav_depth.core.params import load_params
 from uav_depth.core.rectify import Rectifier
 from uav_depth.daemon.config import RunConfig
 from uav_depth.daemon.framelog import ensure_log_dir, free_mb
 from uav_depth.daemon.link.signing import load_signing_key
+from uav_depth.daemon.link.urls import try_open
 from uav_depth.daemon.ranging import resolve_roi
 from uav_depth.daemon.sources import FrameSource
 from uav_depth.daemon.sources.oak import find_devices, import_depthai
@@ -68,6 +71,12 @@ def preflight(config: RunConfig, source: FrameSource) -> Preflight:
     if mav.signing_key_file is not None:
         load_signing_key(mav.signing_key_file)
         report.checked.append(f"signing key {mav.signing_key_file}")
+    problem, note = try_open(mav.url, mav.baud, mav.bind_address)
+    if problem is not None:
+        raise LinkError(f"{problem}: run would retry every 0.25 s and send nothing")
+    report.checked.append(f"link {mav.url}" + ("" if note else " opens"))
+    if note is not None:
+        report.warnings.append(note)
     log = config.logging
     if log.dir is not None:
         ensure_log_dir(log.dir)

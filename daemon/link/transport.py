@@ -128,9 +128,8 @@ class UdpIn(Transport):
 
     def __init__(self, host: str, port: int):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, UDP_RCVBUF)
-        self.sock.bind((host, port))
+        self.sock.bind((host, port))     # no SO_REUSEADDR: a port another program holds fails here
         self.sock.setblocking(False)
         self.peer: tuple[str, int] | None = None
         self.peer_heard = 0.0
