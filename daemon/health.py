@@ -53,7 +53,8 @@ class Stats:
 
 def status_line(stats: Stats, estimate: Estimate | None, clock: SendClock | None, params_hash: str | None,
                 camera_ok: bool, now: float | None = None) -> str:
-    """One line for the operator: fps, distance (or why none), timings, what was sent, the parameters."""
+    """One line for the operator: fps, distance (or why none), timings, what reached the autopilot (or that none
+    is heard: :meth:`SendClock.delivery`), the parameters."""
     now = time.monotonic() if now is None else now
     if estimate is None:
         dist = "no frame yet"
@@ -62,9 +63,9 @@ def status_line(stats: Stats, estimate: Estimate | None, clock: SendClock | None
         dist = f"distance {estimate.measurement.distance_m:.3f} m (q {estimate.measurement.quality}{truth})"
     else:
         dist = f"no measurement ({estimate.measurement.reason})"
-    sent = f"{clock.valid_sent}/{clock.ticks} valid" if clock else "0/0"
+    sent = clock.delivery(now) if clock else "nothing sent"
     return (f"{stats.fps(now):.1f} fps, {dist}, disparity {stats.median('disparity'):.0f} ms, "
-            f"latency {stats.median('latency'):.0f} ms, sent {sent}, "
+            f"latency {stats.median('latency'):.0f} ms, {sent}, "
             f"params {params_hash or '-'}{'' if camera_ok else ', CAMERA LOST'}")
 
 

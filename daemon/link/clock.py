@@ -4,6 +4,8 @@
 every new estimate (the stereo stage calls :meth:`SendClock.notify`) and at least
 every 100 ms, and queues what it says on the link with the measurement's deadline
 (capture time + ``ranging.max_age_ms``; the link checks it again at the last write).
+What reached an autopilot is counted for the status line (:meth:`SendClock.delivery`):
+a reading written while no autopilot is heard is not "sent".
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ log = logging.getLogger("uav_depth.mavlink")
 STATUSTEXT_MIN_S = 1.0
 #: The queue kind of ``mavlink.proximity_commit``'s copy: it replaces an unsent older copy, never a reading.
 COMMIT_KIND = "DISTANCE_SENSOR commit"
+#: The link's delivered counters the clock's readings add to (``count.delivered``).
+READING, VALID = "reading", "valid reading"
 
 
 class SendClock:
@@ -100,6 +104,16 @@ class SendClock:
         self._notified = True
         self._wake.set()
 
+    def delivery(self, now: float | None = None) -> str:
+        """The status line's account of what reached an autopilot: readings written while one was heard."""
+        d = self.link.count.delivered
+        ap = self.link.autopilot
+        if ap is None:
+            return f"NO AUTOPILOT HEARD on {self.link.config.url}: 0 of {self.ticks} readings delivered"
+        heard = "" if self.link.autopilot_heard(now) else ", NOT HEARD NOW"
+        return (f"sent {d[VALID]}/{d[READING]} valid to autopilot {ap[0]}/{ap[1]} "
+                f"({self.ticks} readings made{heard})")
+
     def tick(self, now: float) -> DistanceReport:
         """Evaluate the wire contract now; send the newest estimate if it is new and due."""
         est = self.estimate()
@@ -119,8 +133,9 @@ class SendClock:
         return report
 
     def _send(self, report: DistanceReport, est: Estimate) -> None:
+        tally = (READING, VALID) if report.valid else (READING,)
         args = (self.sensor_type, self.config.sensor_id, self.orientation, est.t_capture, self.max_age_s)
-        self.link.distance_sensor(report, *args)
+        self.link.distance_sensor(report, *args, tally=tally)
         if self.config.proximity_commit:
             # ArduPilot's MAVLink proximity backend keeps a reading pending until a message with
             # another time_boot_ms arrives: this copy (the same measurement, stamped 1 ms earlier,

@@ -198,6 +198,8 @@ class Pump:
             self.count.dropped += 1
             return
         self.count.sent += 1
+        if o.tally and self._inbound.heard(now):
+            self.count.delivered.update(o.tally)
 
     def _read(self, t: Transport) -> int:
         """Parse what is there (bounded by the transport's read budget); the number of bytes read."""

@@ -8,6 +8,7 @@ assertions are about what arrived (truth), with generous time limits: the machin
 """
 
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -434,3 +435,34 @@ def test_a_flood_of_wrongly_signed_datagrams_is_a_few_log_lines(tmp_path):
         flooder.close()
     assert len(flood_lines) <= 5, f"{lines} lines for {sent} datagrams: {flood_lines[:8]}"
     assert flooder.got == []
+
+
+def _status_lines(daemon):
+    return [line.split("status: ", 1)[1] for line in daemon.stderr().splitlines() if "status: " in line]
+
+
+def test_the_status_line_counts_what_reached_an_autopilot_and_says_when_none_is_heard(tmp_path):
+    # issue 47 item 3: with nobody listening, "sent 151/151 valid": queued messages counted as sent
+    port = free_port()
+    url = f"udpin:127.0.0.1:{port}"
+    daemon = Daemon(tmp_path, url)
+    try:
+        wait_for(lambda: len(_status_lines(daemon)) >= 3, 90, daemon, "3 status lines")
+        lonely = _status_lines(daemon)[-1]
+        autopilot = Receiver(f"udpout:127.0.0.1:{port}", sysid=1, compid=1, autopilot=True)
+        try:
+            wait_for(lambda: len(autopilot.of("DISTANCE_SENSOR")) >= 10, 60, daemon, "10 readings")
+            n_seen = len(autopilot.of("DISTANCE_SENSOR"))
+            t = time.monotonic()
+            wait_for(lambda: any("to autopilot" in s for s in _status_lines(daemon)[-1:])
+                     and time.monotonic() - t > 1.5, 30, daemon, "a status line with the autopilot")
+            heard = _status_lines(daemon)[-1]
+        finally:
+            autopilot.close()
+    finally:
+        daemon.close()
+    assert re.search(f"NO AUTOPILOT HEARD on {url}: 0 of [0-9]+ readings delivered", lonely), lonely
+    sent = re.search(r"sent (\d+)/(\d+) valid to autopilot 1/1 \((\d+) readings made\)", heard)
+    assert sent, heard
+    valid, delivered, made = map(int, sent.groups())
+    assert 0 < valid <= delivered <= made and delivered >= n_seen - 2, (heard, n_seen)
