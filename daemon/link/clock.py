@@ -106,13 +106,13 @@ class SendClock:
 
     def delivery(self, now: float | None = None) -> str:
         """The status line's account of what reached an autopilot: readings written while one was heard."""
-        d = self.link.count.delivered
+        d, lost = self.link.count.delivered, self.link.count.lost[READING]
         ap = self.link.autopilot
         if ap is None:
             return f"NO AUTOPILOT HEARD on {self.link.config.url}: 0 of {self.ticks} readings delivered"
         heard = "" if self.link.autopilot_heard(now) else ", NOT HEARD NOW"
         return (f"sent {d[VALID]}/{d[READING]} valid to autopilot {ap[0]}/{ap[1]} "
-                f"({self.ticks} readings made{heard})")
+                f"({self.ticks} readings made, {lost} lost{heard})")
 
     def tick(self, now: float) -> DistanceReport:
         """Evaluate the wire contract now; send the newest estimate if it is new and due."""

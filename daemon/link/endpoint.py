@@ -121,7 +121,7 @@ class MavlinkLink:
         ``tally``: counters of ``count.delivered`` it adds to when written while an autopilot is heard.
         """
         if self._pump.t is None or self._stop.is_set() and self._thread is None:
-            self.count.dropped += 1
+            self.count.drop("dropped", Out(kind, build, deadline, tally))
             return False
         self._queue.put(Out(kind, build, deadline, tally))
         self._pump.wake()

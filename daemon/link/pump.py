@@ -174,14 +174,14 @@ class Pump:
         for o in self._queue.take():
             now = self._clock()
             if o.deadline is not None and now > o.deadline:
-                self.count.expired += 1
+                self.count.drop("expired", o)
             elif not t.can_send:
-                self.count.dropped += 1
+                self.count.drop("dropped", o)
             elif o.deadline is not None and gated and (verdict := self._gate.decide(o, now)) is not Verdict.WRITE:
                 if verdict is Verdict.WAIT:
                     waiting.append(o)
                 else:
-                    self.count.held += 1                     # not reading: held back, not queued
+                    self.count.drop("held", o)               # not reading: held back, not queued
             else:
                 self._write_one(t, o, now)
         self._queue.put_back(waiting)
@@ -190,12 +190,12 @@ class Pump:
         try:
             buf = self.signing.pack(o.build(self.signing.tx))
         except Exception:   # a builder's bug drops its message, never the I/O thread
-            self.count.build_errors += 1
+            self.count.drop("build_errors", o)
             self._lines(logging.ERROR, "build", "mavlink %s: a %s message could not be built and was dropped",
                         self.config.url, o.kind or "queued", exc_info=True)
             return
         if not t.write(buf, o.deadline, now):
-            self.count.dropped += 1
+            self.count.drop("dropped", o)
             return
         self.count.sent += 1
         if o.tally and self._inbound.heard(now):

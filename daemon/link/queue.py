@@ -48,6 +48,14 @@ class LinkCounters:
     build_errors: int = 0     # messages dropped because building them raised (a bug, logged)
     #: Written while an autopilot was heard, by tally (see :class:`Out`): "sent means delivered".
     delivered: collections.Counter = field(default_factory=collections.Counter)
+    #: Not written at all (replaced, expired, held back, no peer, a failed write), by tally.
+    lost: collections.Counter = field(default_factory=collections.Counter)
+
+    def drop(self, why: str, out: "Out | None" = None) -> None:
+        """Count a message not written: ``why`` names the counter (dropped, expired, held, build_errors)."""
+        setattr(self, why, getattr(self, why) + 1)
+        if out is not None:
+            self.lost.update(out.tally)
 
 
 class SendQueue:
@@ -65,11 +73,10 @@ class SendQueue:
                 for i, o in enumerate(self._items):
                     if o.kind == out.kind:
                         del self._items[i]
-                        self._counters.dropped += 1
+                        self._counters.drop("dropped", o)
                         break
             if len(self._items) >= self._limit:
-                self._items.popleft()
-                self._counters.dropped += 1
+                self._counters.drop("dropped", self._items.popleft())
             self._items.append(out)
 
     def take(self) -> list[Out]:

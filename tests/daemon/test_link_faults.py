@@ -218,21 +218,55 @@ def _daemon_address(peer):
     return next(iter(peer.conn.clients))
 
 
+class StatusWatch:
+    """The daemon's status lines as they appear: (when this test saw it, readings made, lost)."""
+
+    PATTERN = re.compile(r"\((\d+) readings made, (\d+) lost")
+
+    def __init__(self, daemon):
+        self.daemon = daemon
+        self.seen: list[tuple[float, int, int]] = []
+        self._lines = 0
+
+    def poll(self) -> None:
+        lines = _status_lines(self.daemon)
+        now = time.monotonic()
+        for line in lines[self._lines:]:
+            m = self.PATTERN.search(line)
+            if m:
+                self.seen.append((now, int(m.group(1)), int(m.group(2))))
+        self._lines = len(lines)
+
+    def next_after(self, t: float, timeout_s: float = 30.0) -> tuple[float, int, int]:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            self.poll()
+            later = [s for s in self.seen if s[0] > t]
+            if later:
+                return later[0]
+            time.sleep(0.02)
+        raise AssertionError(f"no status line after {t:.1f}: {self.daemon.stderr()[-2000:]}")
+
+
 def test_inbound_floods_do_not_stall_the_stream_or_grow_memory(tmp_path, peer):
     # item 3: 20 KB random datagrams at 100/s gave a 2.0 s gap (ArduPilot drops the sensor after 0.5 s),
     # 65 KB zero datagrams 1.5 s; RSS grew 30 MB. The flood comes from the autopilot's own address, the
     # only one the daemon's connected udpout socket still hears.
+    # A loaded machine slows the stereo stage: fewer readings, longer gaps between them, whatever the link
+    # does (issue 44 item 11: a 0.693 s gap at load 12). So the test asks what a stalled link would
+    # change: readings made but never written (the daemon's own count, 'lost', read from the status lines
+    # before and after the flood), and readings older than their deadline by their own capture stamps.
     daemon = Daemon(tmp_path, f"udpout:127.0.0.1:{peer.port}")
+    status = StatusWatch(daemon)
     try:
         wait_for(lambda: len(peer.of("DISTANCE_SENSOR")) >= 10, 90, daemon, "10 readings")
-        t0 = time.monotonic()
-        time.sleep(2.0)
-        base_gap = max(gaps([t for t, _ in peer.timed("DISTANCE_SENSOR", since=t0)]))
+        status.next_after(time.monotonic())
         rss0 = daemon.rss_kb()
         target = _daemon_address(peer)
         sock = peer.conn.port
         rng = __import__("random").Random(13)
         t_flood = time.monotonic()
+        before = status.seen[-1]
         for junk in ([rng.randbytes(20_000) for _ in range(8)], [bytes(65_000)], [rng.randbytes(900) for _ in range(8)]):
             end = time.monotonic() + 2.0
             i = 0
@@ -241,13 +275,17 @@ def test_inbound_floods_do_not_stall_the_stream_or_grow_memory(tmp_path, peer):
                 i += 1
                 time.sleep(0.01 if len(junk[0]) > 1000 else 0.002)
         t_end = time.monotonic()
-        time.sleep(0.5)
+        after = status.next_after(t_end + 0.5)
         rss1 = daemon.rss_kb()
-        during = [t for t, _ in peer.timed("DISTANCE_SENSOR", since=t_flood) if t <= t_end + 0.5]
+        during = [(t, m) for t, m in peer.timed("DISTANCE_SENSOR", since=before[0]) if t <= after[0]]
     finally:
         daemon.close()
-    worst = max(gaps(during))
-    assert worst < max(0.5, 1.5 * base_gap), f"gap {worst:.3f} s under the flood (without: {base_gap:.3f} s)"
+    made, lost = after[1] - before[1], after[2] - before[2]
+    assert made >= 10, f"only {made} readings made in {after[0] - before[0]:.1f} s"   # the stereo stage ran
+    assert lost == 0, f"the link lost {lost} of the {made} readings made during the flood"
+    ages = [age_ms(t, m) for t, m in during]
+    # the peer got them (between the two lines as this test saw them: a reading either side may be cut)
+    assert len(during) >= made - 2 and max(ages) <= MAX_AGE_MS, (len(during), made, max(ages))
     assert rss1 - rss0 < 20_000, f"RSS grew {rss1 - rss0} kB"                  # goal 5 MB: bench/link_flood.py
 
 
@@ -462,7 +500,7 @@ def test_the_status_line_counts_what_reached_an_autopilot_and_says_when_none_is_
     finally:
         daemon.close()
     assert re.search(f"NO AUTOPILOT HEARD on {url}: 0 of [0-9]+ readings delivered", lonely), lonely
-    sent = re.search(r"sent (\d+)/(\d+) valid to autopilot 1/1 \((\d+) readings made\)", heard)
+    sent = re.search(r"sent (\d+)/(\d+) valid to autopilot 1/1 \((\d+) readings made, \d+ lost\)", heard)
     assert sent, heard
     valid, delivered, made = map(int, sent.groups())
     assert 0 < valid <= delivered <= made and delivered >= n_seen - 2, (heard, n_seen)
