@@ -30,7 +30,7 @@ from uav_depth.daemon.config import RunConfig
 from uav_depth.daemon.framelog import ensure_log_dir, free_mb
 from uav_depth.daemon.link.signing import load_signing_key
 from uav_depth.daemon.link.urls import try_open
-from uav_depth.daemon.ranging import resolve_roi
+from uav_depth.daemon.ranging import RangeLimits, resolve_roi
 from uav_depth.daemon.sources import FrameSource
 from uav_depth.daemon.sources.oak import find_devices, import_depthai
 from uav_depth.daemon.sources.uvc import device_path, read_zed_conf
@@ -41,10 +41,13 @@ HARDWARE = ("uvc", "oak")
 
 @dataclass
 class Preflight:
-    """What was checked (``checked``: one line each) and what ``run`` would warn about."""
+    """What was checked (``checked``: one line each), what ``run`` would warn about, and the range the
+    parameters measure (``limits``: what DISTANCE_SENSOR states; None when the calibration comes from
+    the device at start-up)."""
 
     checked: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    limits: RangeLimits | None = None
 
 
 def _hardware_calibration(config: RunConfig, report: Preflight) -> Calibration | None:
@@ -112,5 +115,6 @@ def preflight(config: RunConfig, source: FrameSource) -> Preflight:
     holder = StageHolder(str(config.params_file) if config.params_file else None, config.ranging,
                          statustext=lambda text, severity: None)
     stage = holder.open(rectified, roi)
+    report.limits = stage.ranger.limits
     report.checked.append(f"parameters {stage.origin}: hash {stage.hash}, measure a test render in ROI {list(roi)}")
     return report

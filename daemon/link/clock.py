@@ -5,7 +5,9 @@ every new estimate (the stereo stage calls :meth:`SendClock.notify`) and at leas
 every 100 ms, and queues what it says on the link with the measurement's deadline
 (capture time + ``ranging.max_age_ms``; the link checks it again at the last write).
 What reached an autopilot is counted for the status line (:meth:`SendClock.delivery`):
-a reading written while no autopilot is heard is not "sent".
+a reading written while no autopilot is heard is not "sent". The clock also starts
+the check of the autopilot's settings (:mod:`.settings_check`) against the range it
+states (:meth:`SendClock.wire_range`).
 """
 
 from __future__ import annotations
@@ -20,8 +22,10 @@ from typing import Callable
 
 from uav_depth.daemon.config import MavlinkConfig
 from uav_depth.daemon.link.conditions import Condition
-from uav_depth.daemon.link.contract import DistanceReport, distance_report, stamp_after, stamp_before
+from uav_depth.daemon.link.contract import DistanceReport, distance_report, stamp_after, stamp_before, stated_range_cm
 from uav_depth.daemon.link.endpoint import MavlinkLink
+from uav_depth.daemon.link.settings import WireRange
+from uav_depth.daemon.link.settings_check import SettingsCheck
 from uav_depth.daemon.link.vocabulary import HEARTBEAT_PERIOD_S, SENSOR_TYPES, orientation_code
 from uav_depth.daemon.ranging import Estimate, RangeLimits
 
@@ -67,6 +71,7 @@ class SendClock:
         self.t_start = 0.0                 # time_boot_ms counts from the companion's boot (CLOCK_MONOTONIC)
         self.orientation = orientation_code(config.orientation)
         self.sensor_type = SENSOR_TYPES[config.sensor_type]
+        self.settings = SettingsCheck(link, self.wire_range)
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._notified = False
@@ -83,6 +88,7 @@ class SendClock:
         self.send_latency_ms: collections.deque[float] = collections.deque(maxlen=1000)   # capture -> queued
 
     def start(self) -> "SendClock":
+        self.settings.start()
         self._thread = threading.Thread(target=self._loop, name="mavlink-clock", daemon=True)
         self._thread.start()
         return self
@@ -103,6 +109,11 @@ class SendClock:
         """A new estimate was published: send it now."""
         self._notified = True
         self._wake.set()
+
+    def wire_range(self) -> WireRange:
+        """The range DISTANCE_SENSOR states now, and the orientation (what the autopilot's settings must fit)."""
+        min_cm, max_cm = stated_range_cm(self.limits())
+        return WireRange(min_cm, max_cm, self.orientation)
 
     def delivery(self, now: float | None = None) -> str:
         """The status line's account of what reached an autopilot: readings written while one was heard."""
