@@ -149,8 +149,9 @@ def listen_for_autopilot(args, config, sitl, link, stop, err, refused):
     log.info("scripted approach: listening %.1f s for an autopilot's HEARTBEAT on %s first", args.listen_s,
              config.mavlink.url)
     deadline = time.monotonic() + args.listen_s
+    beat = heartbeats(link)
     while link.autopilot is None and not refused and not stop.wait(0.05) and time.monotonic() < deadline:
-        pass
+        beat()
     if refused or (link.autopilot is not None and not args.force_scripted):
         link.close()
         err(scripted_refusal(refused[0] if refused else "system %d component %d on %s" % (
@@ -188,7 +189,9 @@ def wait_for_pose(args, config, sitl, link, stop, err, refused):
              "before (ArduPilot streams them once its EKF uses GPS)", limit, config.mavlink.url)
     t0 = time.monotonic()
     next_note = t0 + 10.0
+    beat = heartbeats(link)
     while not tracker.ready() and not stop.wait(0.05):
+        beat()
         now = time.monotonic()
         if args.wait_s > 0 and now - t0 > args.wait_s:
             link.close()
@@ -247,6 +250,23 @@ def fly(args, config, link, pose_provider, tracker, signals, err, refused) -> in
         err(scripted_refusal(refused[0]))
         return EXIT_CONFIG
     return code
+
+
+def heartbeats(link, state: str = "boot"):
+    """A call for a wait loop that sends the daemon's HEARTBEAT once a second (docs/wire.md promises one a
+    second whatever happens; the send clock, which sends it later, starts only with the service)."""
+    import time
+
+    from uav_depth.daemon.link.vocabulary import HEARTBEAT_PERIOD_S
+
+    due = [0.0]
+
+    def beat() -> None:
+        now = time.monotonic()
+        if now >= due[0]:
+            link.heartbeat(state)
+            due[0] = now + HEARTBEAT_PERIOD_S
+    return beat
 
 
 def full_frame_users(config) -> list[str]:
