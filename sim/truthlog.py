@@ -113,7 +113,8 @@ class TruthLog:
         if m.valid and est.truth_m:
             err = 100.0 * (m.distance_m - est.truth_m) / est.truth_m
             self.errors_pct.append(err)
-        f = lambda v, nd=4: "" if v is None else f"{v:.{nd}f}"  # noqa: E731
+        def f(v: float | None, nd: int = 4) -> str:
+            return "" if v is None else f"{v:.{nd}f}"
         pose = ([f(v) for v in state.position_ned] + [f(math.degrees(a), 2) for a in (state.roll, state.pitch,
                                                                                        state.yaw)]
                 if state is not None else [""] * 6)
