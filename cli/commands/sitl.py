@@ -177,6 +177,9 @@ def wait_for_pose(args, config, sitl, link, stop, err, refused):
     from uav_depth.sim.truthlog import PoseRecorder
 
     log = logging.getLogger("uav_depth.sitl")
+    code = check_settings_on_connect(config, link, err)
+    if code is not None:
+        return None, None, code
     tracker = PoseTracker(sitl, config.source.scene.branch_distance_m)
     link.subscribe("LOCAL_POSITION_NED", tracker.on_message)
     link.subscribe("ATTITUDE", tracker.on_message)
@@ -250,6 +253,29 @@ def fly(args, config, link, pose_provider, tracker, signals, err, refused) -> in
         err(scripted_refusal(refused[0]))
         return EXIT_CONFIG
     return code
+
+
+def check_settings_on_connect(config, link, err) -> int | None:
+    """Check the autopilot's settings when it is first heard, not when its pose comes (about 40 s later on
+    ArduPilot, when the service and its send clock start): the range from the parameter file as run --check
+    builds it. An exit code when the config cannot fly (as the service would say later), else None."""
+    from uav_depth.cli.commands.run import exit_code
+    from uav_depth.core.errors import UavDepthError
+    from uav_depth.daemon.link.contract import stated_range_cm
+    from uav_depth.daemon.link.settings import WireRange
+    from uav_depth.daemon.link.settings_check import attach
+    from uav_depth.daemon.link.vocabulary import orientation_code
+    from uav_depth.daemon.preflight import preflight
+    from uav_depth.daemon.sources import create_source
+
+    try:
+        limits = preflight(config, create_source(config.source)).limits
+    except UavDepthError as exc:
+        err(exc)
+        return exit_code(exc)
+    rng = WireRange(*stated_range_cm(limits), orientation_code(config.mavlink.orientation))
+    attach(link, lambda: rng)
+    return None
 
 
 def heartbeats(link, state: str = "boot"):

@@ -25,7 +25,7 @@ from uav_depth.daemon.link.conditions import Condition
 from uav_depth.daemon.link.contract import DistanceReport, distance_report, stamp_after, stamp_before, stated_range_cm
 from uav_depth.daemon.link.endpoint import MavlinkLink
 from uav_depth.daemon.link.settings import WireRange
-from uav_depth.daemon.link.settings_check import SettingsCheck
+from uav_depth.daemon.link.settings_check import SettingsCheck, attach
 from uav_depth.daemon.link.vocabulary import HEARTBEAT_PERIOD_S, SENSOR_TYPES, orientation_code
 from uav_depth.daemon.ranging import Estimate, RangeLimits
 
@@ -71,7 +71,7 @@ class SendClock:
         self.t_start = 0.0                 # time_boot_ms counts from the companion's boot (CLOCK_MONOTONIC)
         self.orientation = orientation_code(config.orientation)
         self.sensor_type = SENSOR_TYPES[config.sensor_type]
-        self.settings = SettingsCheck(link, self.wire_range)
+        self.settings: SettingsCheck | None = None
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._notified = False
@@ -88,7 +88,7 @@ class SendClock:
         self.send_latency_ms: collections.deque[float] = collections.deque(maxlen=1000)   # capture -> queued
 
     def start(self) -> "SendClock":
-        self.settings.start()
+        self.settings = attach(self.link, self.wire_range)
         self._thread = threading.Thread(target=self._loop, name="mavlink-clock", daemon=True)
         self._thread.start()
         return self

@@ -55,6 +55,8 @@ class MavlinkLink:
         self._pump = Pump(config, self.signing, self._queue, self.count, self._inbound, backoff, clock)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        #: The check of the autopilot's settings on this link (:func:`.settings_check.attach`), once started.
+        self.settings_check: Any = None
 
     # -- lifecycle and state -------------------------------------------------------------------
     def start(self) -> "MavlinkLink":

@@ -6,7 +6,9 @@ are asked again each second. As soon as all are answered (or :data:`ANSWER_S` af
 the first request, with what came) the rules are applied: each misfit is one
 warning line in the log, and one STATUSTEXT names the first (and how many more).
 Everything runs on the link's I/O thread, from its subscriptions (an autopilot sends
-a HEARTBEAT every second, which paces the retries).
+a HEARTBEAT every second, which paces the retries). One check per link (:func:`attach`):
+``uav-depth sitl`` starts it when it connects, long before the service (and its send
+clock) starts with the autopilot's pose.
 """
 
 from __future__ import annotations
@@ -23,6 +25,16 @@ log = logging.getLogger("uav_depth.mavlink")
 ANSWER_S = 2.5
 #: Ask for an unanswered parameter again after this long.
 RETRY_S = 0.8
+
+
+def attach(link: Any, wire_range: Callable[[], WireRange]) -> "SettingsCheck":
+    """The link's one check, started on first use; a later caller (the send clock, once the service runs)
+    takes it over with its own ``wire_range``, and a check already done is not done again."""
+    check = link.settings_check
+    if check is None:
+        check = link.settings_check = SettingsCheck(link, wire_range).start()
+    check.wire_range = wire_range
+    return check
 
 
 class SettingsCheck:
@@ -102,9 +114,13 @@ class SettingsCheck:
         lines = misfits(self._rules, self._values, rng)
         self.result, self.finished_at = lines, self.clock()
         have = ", ".join(f"{k} {v:g}" for k, v in sorted(self._values.items()))
+        if not self._values:
+            log.warning("mavlink: the autopilot answered no PARAM_REQUEST_READ (%s): its settings are not checked",
+                        ", ".join(r.param for r in self._rules))
+            return
         if not lines:
             log.info("mavlink: the autopilot's settings fit the range on the wire (%.2f..%.2f m): %s",
-                     rng.min_m, rng.max_m, have or "none answered")
+                     rng.min_m, rng.max_m, have)
             return
         for line in lines:
             log.warning("mavlink: autopilot setting does not fit the range on the wire (%.2f..%.2f m): %s",

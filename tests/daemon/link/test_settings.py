@@ -142,3 +142,43 @@ def test_the_daemon_reports_a_mismatched_rngfnd1_min_within_5_s_of_connecting(tm
             "at or below the daemon's min_distance 0.23 m") in log()
     assert len(said) == 1
     print(f"\nRNGFND1_MIN 0.3 reported {t_said - ap.first_heard:.2f} s after connecting")
+
+
+def test_sitl_reports_it_while_still_waiting_for_the_pose(tmp_path):
+    # uav-depth sitl starts the service only once the autopilot's pose comes (about 40 s after ArduPilot
+    # boots); the settings are checked when the autopilot is first heard
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "uav_depth.cli.main", "sitl", "--config", str(SITL_YAML),
+                             "--mavlink-url", f"udpin:127.0.0.1:{port}", "--truth-log", str(tmp_path / "t.csv")],
+                            stdout=subprocess.DEVNULL, stderr=open(tmp_path / "stderr", "w"))
+    log = lambda: (tmp_path / "stderr").read_text()  # noqa: E731
+    ap = None
+    try:
+        deadline = time.monotonic() + 120
+        while "waiting as long as it takes" not in log():
+            assert proc.poll() is None and time.monotonic() < deadline, log()[-2000:]
+            time.sleep(0.1)
+        ap = ParamAutopilot(port, WALKTHROUGH)            # HEARTBEAT and parameters, never a pose
+        deadline = time.monotonic() + 30
+        while not any("check" in text for _, text in ap.texts) and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        proc.terminate()
+        proc.wait(20)
+        if ap is not None:
+            ap.close()
+    said = [(t, text) for t, text in ap.texts if "check" in text]
+    assert [text for _, text in said] == ["uav-depth: check RNGFND1_MIN 0.3"], (ap.texts, log()[-2000:])
+    assert said[0][0] - ap.first_heard <= 5.0
+    assert "ready:" not in log()                           # said before the service (and its clock) started
+
+
+def test_one_check_per_link_whoever_starts_it():
+    from uav_depth.daemon.config import MavlinkConfig
+    from uav_depth.daemon.link.endpoint import MavlinkLink
+    from uav_depth.daemon.link.settings_check import attach
+
+    link = MavlinkLink(MavlinkConfig(url=f"udpin:127.0.0.1:{free_port()}"))
+    first = attach(link, lambda: RANGE)
+    later = WireRange(30, 300, 0)
+    assert attach(link, lambda: later) is first and first.wire_range() == later
