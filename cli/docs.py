@@ -35,6 +35,12 @@ def params_table() -> str:
     return params_table_markdown()
 
 
+def wire_conditions() -> str:
+    from uav_depth.daemon.link.conditions import conditions_table_markdown
+
+    return conditions_table_markdown()
+
+
 def config_reference() -> str:
     from uav_depth.cli.sources import SOURCES
     from uav_depth.daemon.config import reference_markdown
@@ -47,6 +53,7 @@ TABLES: dict[str, Callable[[], str]] = {
     "commands": commands_table,
     "params_table": params_table,
     "config_reference": config_reference,
+    "wire_conditions": wire_conditions,
 }
 
 _BLOCK = re.compile(r"(<!-- generated: (\w+)[^>]*-->\n)(.*?)(\n<!-- end generated -->)", re.S)

@@ -33,6 +33,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("uav_depth.cli.commands.run", "the on-board daemon: stereo -> branch distance -> MAVLink DISTANCE_SENSOR"),
     "sitl": ("uav_depth.cli.commands.sitl",
              "fly the daemon against a simulated autopilot: synthetic stereo rendered from its pose"),
+    "autopilot-params": ("uav_depth.cli.commands.autopilot_params",
+                         "print the autopilot's settings (ArduPilot or PX4) that fit the range the daemon sends"),
     "session": ("uav_depth.cli.commands.session", "make a session (log layout) from a folder of stereo pairs"),
     "check-rig": ("uav_depth.cli.commands.check_rig",
                   "measure the stereo rig's vertical misalignment (is it still rectified? can SGBM work?)"),

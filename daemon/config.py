@@ -31,7 +31,7 @@ from uav_depth.core.calibration import Calibration, calibration_from_dict, load_
 from uav_depth.core.errors import ConfigError
 from uav_depth.core.keys import Key, section_values
 from uav_depth.daemon.liveview import LiveViewConfig
-from uav_depth.daemon.mavlink_enums import orientation_code
+from uav_depth.daemon.link.vocabulary import orientation_code
 from uav_depth.daemon.obstacles import ObstacleConfig
 from uav_depth.daemon.ranging import RangingConfig
 from uav_depth.daemon.rigwatch import RigCheckConfig
@@ -82,7 +82,7 @@ def _check_orientation(value: Any) -> str | None:
 
 @dataclass(frozen=True)
 class MavlinkConfig:
-    """MAVLink 2 output (see :mod:`uav_depth.daemon.mavlink_out`)."""
+    """MAVLink 2 output (see :mod:`uav_depth.daemon.link`)."""
 
     url: str = "udpout:127.0.0.1:14550"
     baud: int = 115200

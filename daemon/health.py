@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Iterator, Mapping
 
 from uav_depth.daemon.config import ServiceConfig
-from uav_depth.daemon.mavlink_out import SendClock
+from uav_depth.daemon.link.clock import SendClock
 from uav_depth.daemon.notify import Notifier
 from uav_depth.daemon.ranging import Estimate
 
@@ -53,7 +53,8 @@ class Stats:
 
 def status_line(stats: Stats, estimate: Estimate | None, clock: SendClock | None, params_hash: str | None,
                 camera_ok: bool, now: float | None = None) -> str:
-    """One line for the operator: fps, distance (or why none), timings, what was sent, the parameters."""
+    """One line for the operator: fps, distance (or why none), timings, what reached the autopilot (or that none
+    is heard: :meth:`SendClock.delivery`), the parameters."""
     now = time.monotonic() if now is None else now
     if estimate is None:
         dist = "no frame yet"
@@ -62,9 +63,9 @@ def status_line(stats: Stats, estimate: Estimate | None, clock: SendClock | None
         dist = f"distance {estimate.measurement.distance_m:.3f} m (q {estimate.measurement.quality}{truth})"
     else:
         dist = f"no measurement ({estimate.measurement.reason})"
-    sent = f"{clock.valid_sent}/{clock.ticks} valid" if clock else "0/0"
+    sent = clock.delivery(now) if clock else "nothing sent"
     return (f"{stats.fps(now):.1f} fps, {dist}, disparity {stats.median('disparity'):.0f} ms, "
-            f"latency {stats.median('latency'):.0f} ms, sent {sent}, "
+            f"latency {stats.median('latency'):.0f} ms, {sent}, "
             f"params {params_hash or '-'}{'' if camera_ok else ', CAMERA LOST'}")
 
 
@@ -96,11 +97,12 @@ class Health:
 
         Stuck: one frame in the stereo stage, or one read/open of the source, for longer
         than ``service.stall_timeout_s``. Then WATCHDOG=1 stops and systemd restarts us.
+        The send clock's link counts as a loop: its I/O thread (``link.alive``).
         """
         now = time.monotonic() if now is None else now
         limit = self.config.stall_timeout_s
         busy, reading = self.busy_since, self.source_since
-        return (clock is not None and clock.alive
+        return (clock is not None and clock.alive and clock.link.alive
                 and all(t.is_alive() for t in threads.values())
                 and (busy is None or now - busy < limit)
                 and (reading is None or now - reading < limit))

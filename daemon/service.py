@@ -10,7 +10,7 @@ Threads and who waits on whom (nobody waits on the stereo stage):
   :class:`~uav_depth.daemon.ranging.Estimate` by one
   assignment. It reads the current stage (pipeline + ranger) by one attribute
   read per frame, so a parameter swap never interrupts a frame.
-- ``mavlink-clock`` (:class:`~uav_depth.daemon.mavlink_out.SendClock`): DISTANCE_SENSOR
+- ``mavlink-clock`` (:class:`~uav_depth.daemon.link.clock.SendClock`): DISTANCE_SENSOR
   at ``rate_hz``, HEARTBEAT at 1 Hz, from the newest estimate if it is fresh.
 - ``mavlink-io``: the link's reader and reconnector; ``params-watch``: hot
   reload; ``frame-logger``: the background writer.
@@ -47,8 +47,9 @@ from uav_depth.daemon.health import Health, Stats, status_line
 from uav_depth.daemon.liveview import LiveView
 from uav_depth.daemon.obstacles import Field, ObstacleSender, encoder, limits_cm
 from uav_depth.daemon.rigwatch import RigWatch
-from uav_depth.daemon.mavlink_out import (CAMERA_LOST, MEASURING, PARAMS_UNUSABLE, SHUTTING_DOWN, SOURCE_ENDED,
-                                          STARTING, MavlinkLink, SendClock)
+from uav_depth.daemon.link.clock import SendClock
+from uav_depth.daemon.link.conditions import Condition
+from uav_depth.daemon.link.endpoint import MavlinkLink
 from uav_depth.daemon.notify import Notifier
 from uav_depth.daemon.ranging import Estimate, OutlierGate, RangeLimits, resolve_roi
 from uav_depth.daemon.reload import FileWatcher
@@ -143,8 +144,8 @@ class Service:
         return self.health.stats
 
     @property
-    def condition(self) -> str:
-        """The one condition that decides what goes on the wire (:mod:`uav_depth.daemon.mavlink_out`).
+    def condition(self) -> Condition:
+        """The one condition that decides what goes on the wire (:mod:`uav_depth.daemon.link.contract`).
 
         ``MEASURING``: frames flow through a stage built from the configured parameters, and each
         estimate then says whether it measured and how old it is (the wire contract decides per
@@ -156,22 +157,22 @@ class Service:
         this: see ``stages.rejected``).
         """
         if self._stopping.is_set():
-            return SHUTTING_DOWN
+            return Condition.SHUTTING_DOWN
         if self.ended:
-            return SOURCE_ENDED
+            return Condition.SOURCE_ENDED
         if not self._first_frame.is_set():
-            return STARTING
+            return Condition.STARTING
         if not self.camera_ok:
-            return CAMERA_LOST
+            return Condition.CAMERA_LOST
         stage = self.stage
         if self.config.params_file is not None and (stage is None or stage.origin != str(self.config.params_file)):
-            return PARAMS_UNUSABLE
-        return MEASURING
+            return Condition.PARAMS_UNUSABLE
+        return Condition.MEASURING
 
-    def _blind(self) -> str | None:
+    def _blind(self) -> Condition | None:
         """The service's condition when it is blind, for the send clock (None: the estimate decides)."""
         cond = self.condition
-        return None if cond == MEASURING else cond
+        return None if cond == Condition.MEASURING else cond
 
     def reload_params(self, path: Path | None = None) -> bool:
         """Re-read the parameter file (see :meth:`StageHolder.reload`). Never raises."""

@@ -50,11 +50,12 @@ def setup_logging(level: str) -> None:
 def exit_code(exc) -> int:
     """The exit code (module docstring) for a failure of ``run``, ``run --check`` or ``sitl``: the one mapping."""
     from uav_depth.cli.exit_codes import EXIT_CONFIG, EXIT_ERROR, EXIT_UNAVAILABLE
-    from uav_depth.core.errors import CalibrationError, ConfigError, DependencyError, FileFormatError, SourceError
+    from uav_depth.core.errors import (CalibrationError, ConfigError, DependencyError, FileFormatError, LinkError,
+                                       SourceError)
 
     if isinstance(exc, (ConfigError, CalibrationError, FileFormatError, DependencyError)):
         return EXIT_CONFIG
-    if isinstance(exc, SourceError):
+    if isinstance(exc, (SourceError, LinkError)):
         return EXIT_UNAVAILABLE
     return EXIT_ERROR
 

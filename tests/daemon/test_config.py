@@ -127,7 +127,7 @@ def test_invalid_yaml_and_missing_file(tmp_path):
 @pytest.mark.parametrize("name,code", [("forward", 0), ("down", 25), ("up", 24), ("back", 4), ("ROLL_180", 8),
                                        (3, 3)])
 def test_orientation_names(name, code):
-    from uav_depth.daemon.mavlink_enums import orientation_code
+    from uav_depth.daemon.link.vocabulary import orientation_code
 
     assert orientation_code(name) == code
     assert run_config_from_dict({"source": SYNTH, "mavlink": {"orientation": name}}, sources=SOURCES).mavlink.orientation == name

@@ -94,7 +94,7 @@ def free_udp_port() -> int:
 
 
 def test_daemon_runs_inside_the_units_sandbox(tmp_path):
-    from uav_depth.daemon.mavlink_enums import mavutil
+    from uav_depth.daemon.link.vocabulary import mavutil
 
     settings = unit_settings()
     assert settings["SystemCallErrorNumber"] == ["EPERM"], "the test emulates EPERM answers"
