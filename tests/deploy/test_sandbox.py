@@ -102,6 +102,7 @@ def test_daemon_runs_inside_the_units_sandbox(tmp_path):
     port = free_udp_port()
     params = tmp_path / "state" / "params.yaml"
     params.parent.mkdir()
+    params.write_text("sgbm:\n  block_size: 5\n")     # what install.sh puts there: without it nothing is sent
     config = {
         "source": {"kind": "synthetic", "fps": 10,
                    "scene": {"width": 320, "height": 240, "focal_px": 200.0, "branch_distance_m": 1.0, "seed": 2}},
