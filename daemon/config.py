@@ -25,10 +25,9 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-import yaml
 
 from uav_depth.core.calibration import Calibration, calibration_from_dict, load_calibration
-from uav_depth.core.errors import ConfigError
+from uav_depth.core.errors import ConfigError, FileFormatError
 from uav_depth.core.keys import Key, section_values
 from uav_depth.daemon.liveview import LiveViewConfig
 from uav_depth.daemon.mavlink_enums import orientation_code
@@ -37,7 +36,7 @@ from uav_depth.daemon.ranging import RangingConfig
 from uav_depth.daemon.rigwatch import RigCheckConfig
 from uav_depth.daemon.sources import BUILTIN, SourceTable, source_config_from_dict, source_keys
 from uav_depth.core.validate import fmt, in_range, number
-from uav_depth.core.yamlfile import load_yaml_file
+from uav_depth.core.yamlfile import load_yaml_file, parse_yaml
 
 log = logging.getLogger("uav_depth.config")
 
@@ -291,10 +290,14 @@ def env_keys(sources: SourceTable = BUILTIN) -> dict[str, str]:
 
 
 def parse_value(text: str) -> Any:
-    """A setting given as text (environment, ``--set``): a YAML scalar or flow list/mapping."""
+    """A setting given as text (environment, ``--set``): a YAML scalar or flow list/mapping.
+
+    Read by the one YAML loader (no anchors or aliases, no key twice); text that is not such
+    YAML stays text, and the key's own rule then names it.
+    """
     try:
-        return yaml.safe_load(text) if text.strip() else None
-    except yaml.YAMLError:
+        return parse_yaml(text, "(setting)", "setting") if text.strip() else None
+    except FileFormatError:
         return text
 
 

@@ -57,6 +57,10 @@ from uav_depth.daemon.ranging import Estimate, RangeLimits
 
 log = logging.getLogger("uav_depth.mavlink")
 
+#: A key file holds 64 hex digits, 32 bytes or a passphrase: anything larger is not a key file.
+KEY_FILE_MAX_BYTES = 4096
+
+
 def load_signing_key(path: Path) -> bytes:
     """The 32-byte MAVLink 2 signing key from ``path``.
 
@@ -74,8 +78,12 @@ def load_signing_key(path: Path) -> bytes:
                           f"{path} with mode {stat.S_IMODE(st.st_mode):04o}")
     if stat.S_ISDIR(st.st_mode):
         raise ConfigError(key, "must name a file, not a directory", str(path))
+    if not stat.S_ISREG(st.st_mode) or st.st_size > KEY_FILE_MAX_BYTES:
+        raise ConfigError(key, f"must be a regular file of at most {KEY_FILE_MAX_BYTES} bytes",
+                          f"{path} ({st.st_size} bytes)")
     try:
-        raw = path.read_bytes()
+        with open(path, "rb") as fh:
+            raw = fh.read(KEY_FILE_MAX_BYTES)
     except OSError as exc:   # the service user cannot read it (root-owned 0600): one line, exit 78
         raise ConfigError(key, f"must be readable by this user (uid {os.getuid()}): {exc.strerror}",
                           str(path)) from exc

@@ -26,7 +26,9 @@ import numpy as np
 
 from uav_depth.core.calibration import Calibration
 from uav_depth.core.keys import Key, section_values
-from uav_depth.core.errors import CalibrationError, ConfigError, SourceError
+from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError, SourceError
+from uav_depth.core.fileio import read_text_file
+from uav_depth.core.yamlfile import MAX_YAML_BYTES
 from uav_depth.daemon.sources.base import Frame, device_capture_time
 
 
@@ -110,8 +112,9 @@ def read_zed_conf(path: str | os.PathLike[str], width: int, height: int) -> Cali
                                f"but the camera delivers {width}")
     parser = configparser.ConfigParser()
     try:
-        if not parser.read(path):
-            raise CalibrationError(f"{path}: ZED calibration file not found")
+        parser.read_string(read_text_file(path, "ZED calibration file", MAX_YAML_BYTES), str(path))
+    except FileFormatError as exc:     # missing, not a regular file, too large, not UTF-8: one line
+        raise CalibrationError(str(exc)) from exc
     except configparser.Error as exc:
         raise CalibrationError(f"{path}: not a ZED calibration file ({exc})") from exc
 

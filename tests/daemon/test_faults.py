@@ -218,7 +218,22 @@ mavlink:
   rate_hz: 50
 """
 
+def alias_bomb(levels: int = 9) -> bytes:
+    """Under 1 KB of YAML that expands into 9**levels strings (the "billion laughs")."""
+    lines = ['l0: &l0 ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
+    lines += [f"l{i}: &l{i} [" + ", ".join([f"*l{i - 1}"] * 9) + "]" for i in range(1, levels + 1)]
+    return ("\n".join(lines) + "\n").encode()
+
+
+OVERSIZE_PARAMS = GOOD + b"# padding\n" * 7000      # a valid file, past the 64 KiB cap
+
 STARTUP_FAULTS = [
+    pytest.param(_setup_params(alias_bomb()), r"parameter file uses a YAML anchor \('l0'\) at line 1",
+                 id="params-alias-bomb"),
+    pytest.param(_setup_params(OVERSIZE_PARAMS), r"parameter file is \d+ bytes, more than the 64 KiB",
+                 id="params-over-the-size-cap"),
+    pytest.param(_setup_config_bytes(b"source:\n  kind: synthetic\n" + alias_bomb()),
+                 r"config uses a YAML anchor \('l0'\) at line 3", id="config-alias-bomb"),
     pytest.param(_setup_params(b"sgbm:\n  p1: 600  # caf\xe9\n"), r"parameter file is not UTF-8 text \(byte 0xe9",
                  id="params-not-utf8"),
     pytest.param(_setup_params(b""), r"must set at least one section \(sgbm, wls, compute\); an empty file is not",
@@ -372,6 +387,8 @@ RELOAD_FAULTS = [
     pytest.param(_params_with(**{"sgbm.num_disparities": 224, "sgbm.block_size": 31}),
                  r"must measure a test render", id="search-range-hides-the-roi"),
     pytest.param(b"\x00\x01\x02\x03", r"parameter file is a binary file", id="binary"),
+    pytest.param(alias_bomb(), r"parameter file uses a YAML anchor \('l0'\) at line 1", id="alias-bomb"),
+    pytest.param(OVERSIZE_PARAMS, r"parameter file is \d+ bytes, more than the 64 KiB", id="over-the-size-cap"),
 ]
 
 

@@ -232,6 +232,15 @@ def test_signing_key_file_permissions_and_signed_messages(tmp_path):
     key_file.chmod(0o600)
     key = load_signing_key(key_file)
     assert len(key) == 32
+    big = tmp_path / "big.key"
+    big.write_bytes(b"x" * 5000)
+    big.chmod(0o600)
+    with pytest.raises(ConfigError, match=r"must be a regular file of at most 4096 bytes, but got '.*big\.key \(5000 bytes\)'"):
+        load_signing_key(big)
+    fifo = tmp_path / "fifo.key"
+    os.mkfifo(fifo, 0o600)              # reading it would wait for a writer
+    with pytest.raises(ConfigError, match=r"must be a regular file of at most 4096 bytes"):
+        load_signing_key(fifo)
     hex_file = tmp_path / "hex.key"
     hex_file.write_text(key.hex())
     hex_file.chmod(0o600)

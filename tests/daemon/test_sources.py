@@ -1,5 +1,6 @@
 """Frame sources: the table, synthetic truth and caching, replay pacing, hardware that is not there."""
 
+import os
 import subprocess
 import sys
 import time
@@ -216,6 +217,17 @@ def test_zed_calibration_file(tmp_path):
         read_zed_conf(path, 1000, 720)
     with pytest.raises(CalibrationError, match=r"no \[LEFT_CAM_VGA\] section"):
         read_zed_conf(path, 672, 376)
+
+
+def test_a_zed_calibration_file_is_read_within_a_bound(tmp_path):
+    big = tmp_path / "SN1.conf"
+    big.write_text(ZED_CONF + "; padding\n" * 7000)
+    with pytest.raises(CalibrationError, match=r"SN1\.conf: ZED calibration file is \d+ bytes, more than the 64 KiB"):
+        read_zed_conf(big, 1280, 720)
+    fifo = tmp_path / "SN2.conf"
+    os.mkfifo(fifo)
+    with pytest.raises(CalibrationError, match=r"SN2\.conf: ZED calibration file is not a regular file"):
+        read_zed_conf(fifo, 1280, 720)
 
 
 def test_device_capture_time_takes_the_earliest_plausible_device_stamp():
