@@ -163,6 +163,7 @@ class ServiceConfig:
     status_interval_s: float = 5.0
     stall_timeout_s: float = 10.0
     params_poll_s: float = 1.0
+    trial_timeout_s: float = 30.0
 
     KEYS = (
         Key("shutdown_timeout_s", "float", 3.0, "shutdown gives up on unfinished work after this long", 0.1, 120.0),
@@ -177,6 +178,9 @@ class ServiceConfig:
             "longer than this is a stall: WATCHDOG=1 stops so systemd can restart", 0.5, 3600.0),
         Key("params_poll_s", "float", 1.0, "parameter file poll period (inotify wakes sooner when available)",
             0.05, 60.0),
+        Key("trial_timeout_s", "float", 30.0, "a new parameter set is first run on the test render in a child "
+            "process (OpenCV may crash natively on it); a child that has not answered after this long (Python's "
+            "start included) is killed and the parameters refused", 1.0, 600.0),
     )
 
 

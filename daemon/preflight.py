@@ -5,7 +5,7 @@ The same functions as the service, in the same order of concern: the signing key
 (:func:`~uav_depth.daemon.framelog.ensure_log_dir`), the calibration
 (:func:`~uav_depth.daemon.stage.resolve_calibration`), the parameter file with every
 rule the daemon applies at start-up (:meth:`~uav_depth.daemon.stage.StageHolder.open`:
-the schema, OpenCV's limits at this image size, the test render), and the frame
+the schema, OpenCV's limits at this image size, the test render in a child process), and the frame
 source. What ``run`` refuses, this raises, with the same exception (so the same
 exit code); what ``run`` would only warn about comes back as a warning.
 
@@ -32,6 +32,7 @@ from uav_depth.daemon.sources import FrameSource
 from uav_depth.daemon.sources.oak import find_devices, import_depthai
 from uav_depth.daemon.sources.uvc import device_path, read_zed_conf
 from uav_depth.daemon.stage import StageHolder, resolve_calibration
+from uav_depth.daemon.trial import Trials
 
 HARDWARE = ("uvc", "oak")
 
@@ -101,7 +102,11 @@ def preflight(config: RunConfig, source: FrameSource) -> Preflight:
         report.warnings.append(f"parameter file {config.params_file} does not exist: run would fly the built-in "
                                "manual defaults until it appears")
     holder = StageHolder(str(config.params_file) if config.params_file else None, config.ranging,
-                         statustext=lambda text, severity: None)
-    stage = holder.open(rectified, roi)
-    report.checked.append(f"parameters {stage.origin}: hash {stage.hash}, measure a test render in ROI {list(roi)}")
+                         statustext=lambda text, severity: None, trials=Trials(config.service.trial_timeout_s))
+    try:
+        stage = holder.open(rectified, roi)
+    finally:
+        holder.close()
+    report.checked.append(f"parameters {stage.origin}: hash {stage.hash}, measure a test render in ROI {list(roi)} "
+                          "(run in a child process)")
     return report

@@ -54,6 +54,7 @@ from uav_depth.daemon.ranging import Estimate, OutlierGate, RangeLimits, resolve
 from uav_depth.daemon.reload import FileWatcher
 from uav_depth.daemon.sources import Frame, FrameSource, create_source
 from uav_depth.daemon.stage import Stage, StageHolder, resolve_calibration
+from uav_depth.daemon.trial import Trials
 
 log = logging.getLogger("uav_depth.service")
 
@@ -94,7 +95,8 @@ class Service:
                                                               svc.reconnect_max_s)
         self.notifier = notifier if notifier is not None else Notifier()
         self.health = Health(svc, self.notifier, self.status_line)
-        self.stages = StageHolder(config.params_file, config.ranging, self.link.statustext, self._stopping)
+        self.stages = StageHolder(config.params_file, config.ranging, self.link.statustext, self._stopping,
+                                  Trials(svc.trial_timeout_s))
         self.estimate: Estimate | None = None       # what the send clock reads; replaced by one assignment
         self.last_estimate: Estimate | None = None   # newest frame's result, accepted or not
         self.calibration: Calibration | None = None
@@ -410,6 +412,7 @@ class Service:
                 abandoned.append("the MAVLink send clock")
             self.state = "poweroff"
             self.link.heartbeat("poweroff")
+        self.stages.close()     # a trial in progress ends now, not after its time bound
         for name, t in self._threads.items():
             t.join(left())
             if t.is_alive():

@@ -227,7 +227,13 @@ def alias_bomb(levels: int = 9) -> bytes:
 
 OVERSIZE_PARAMS = GOOD + b"# padding\n" * 7000      # a valid file, past the 64 KiB cap
 
+#: OpenCV's 3-way matcher dies of SIGFPE at uniqueness 100 (issue 44: params check passed it, run died).
+THREE_WAY_100 = _params_with(**{"sgbm.mode": "sgbm_3way"}).replace(b"uniqueness_ratio: 10\n",
+                                                                   b"uniqueness_ratio: 100\n")
+
 STARTUP_FAULTS = [
+    pytest.param(_setup_params(THREE_WAY_100), r"sgbm\.uniqueness_ratio must be at most 99 with sgbm\.mode sgbm_3way",
+                 id="params-3way-uniqueness-100"),
     pytest.param(_setup_params(alias_bomb()), r"parameter file uses a YAML anchor \('l0'\) at line 1",
                  id="params-alias-bomb"),
     pytest.param(_setup_params(OVERSIZE_PARAMS), r"parameter file is \d+ bytes, more than the 64 KiB",
@@ -388,6 +394,8 @@ RELOAD_FAULTS = [
                  r"must measure a test render", id="search-range-hides-the-roi"),
     pytest.param(b"\x00\x01\x02\x03", r"parameter file is a binary file", id="binary"),
     pytest.param(alias_bomb(), r"parameter file uses a YAML anchor \('l0'\) at line 1", id="alias-bomb"),
+    pytest.param(THREE_WAY_100, r"sgbm\.uniqueness_ratio must be at most 99 with sgbm\.mode sgbm_3way",
+                 id="3way-uniqueness-100"),
     pytest.param(OVERSIZE_PARAMS, r"parameter file is \d+ bytes, more than the 64 KiB", id="over-the-size-cap"),
 ]
 
@@ -397,16 +405,21 @@ def test_a_bad_new_parameter_file_keeps_the_last_good_and_the_daemon_flies(flyin
     d, rx, daemon = flying
     kept = f"uav-depth: params rejected, kept {PARAMS_64.hash()[:8]}"
     before = len(daemon.stderr().splitlines())
+    t_replace = time.monotonic()
     _replace(d / "params.yaml", data)
     daemon.proc.send_signal(signal.SIGHUP)      # systemctl kill -s HUP, as the docs recommend
     daemon.wait_for(lambda: any(re.search(message, ln) for ln in daemon.stderr().splitlines()[before:]
                                 if "parameters rejected, keeping " + PARAMS_64.hash() in ln), 60, "the rejection")
     assert rx.wait(lambda: kept in rx.texts(), timeout=10)
+    daemon.proc.send_signal(signal.SIGHUP)      # the same file again: judged once, said once
     t = time.monotonic()
     assert rx.wait(lambda: len(rx.of("DISTANCE_SENSOR", since=t)) >= 10, timeout=10), "the messages stopped"
     err = daemon.stderr()
     assert daemon.proc.poll() is None and "Traceback" not in err
     assert "parameters reloaded" not in err
+    rejections = [ln for ln in err.splitlines()[before:] if "parameters rejected" in ln]
+    assert len(rejections) == 1, rejections
+    assert sum(m.text == kept for m in rx.of("STATUSTEXT", since=t_replace)) == 1
 
 
 def test_a_half_written_file_is_never_loaded(flying):
