@@ -328,6 +328,11 @@ class MavlinkLink:
                 pass
 
     @property
+    def alive(self) -> bool:
+        """The I/O thread runs (it ends only on close, or by dying: then nothing is ever written)."""
+        return self._thread is not None and self._thread.is_alive()
+
+    @property
     def connected(self) -> bool:
         return self._t is not None
 

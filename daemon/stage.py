@@ -25,7 +25,7 @@ from uav_depth.core.calibration import Calibration
 from uav_depth.core.disparity import DisparityPipeline, flight_pipeline
 from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError, ParameterWarning
 from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, check_image_size, load_params
-from uav_depth.daemon.ranging import Ranger, RangingConfig
+from uav_depth.daemon.ranging import RangeLimits, Ranger, RangingConfig
 from uav_depth.daemon.reload import file_signature, wait_until_complete
 from uav_depth.daemon.trial import Job, Trials
 
@@ -204,6 +204,16 @@ class StageHolder:
         """The checked stage of ``params``, its test render run in the child process."""
         assert self._calibration is not None and self._roi is not None
         return build_stage(params, origin, self.ranging, self._calibration, self._roi, self.trials)
+
+    def params(self) -> StereoParams:
+        """The parameters flying now (after :meth:`open`)."""
+        assert self.stage is not None
+        return self.stage.params
+
+    def limits(self) -> RangeLimits:
+        """The range the current stage states on the wire (after :meth:`open`)."""
+        assert self.stage is not None
+        return self.stage.ranger.limits
 
     def close(self) -> None:
         """End the trial child (a trial in progress fails, quietly once ``stop`` is set)."""

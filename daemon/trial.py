@@ -100,7 +100,10 @@ class Trials:
 
     def _try(self, blob: bytes) -> tuple[bytes, str | None, int | None]:
         """(answer line, or b""; what happened when there is none; the child's exit code when it ended)."""
-        proc = self._child()
+        try:
+            proc = self._child()
+        except OSError as exc:      # this interpreter cannot be started again (permissions, no memory)
+            return b"", f"the trial process could not be started ({type(exc).__name__}: {exc})", None
         try:
             os.write(proc.stdin.fileno(), _LEN.pack(len(blob)) + blob)
             line = self._answer(proc)
