@@ -273,6 +273,19 @@ def test_uvc_frames_carry_the_v4l2_buffer_timestamp():
     assert before <= src.read(0.1).t_capture <= time.monotonic()
 
 
+def test_a_two_camera_pair_captured_more_than_half_a_frame_apart_is_dropped_and_counted():
+    src = create_source(source_config(kind="uvc", device="/dev/video97", right_device="/dev/video96",
+                                      width=16, height=16, fps=30.0))
+    img = np.zeros((16, 16), np.uint8)
+    t = time.monotonic()
+    src._caps = [FakeCapture((t - 0.040) * 1000.0, img), FakeCapture((t - 0.020) * 1000.0, img)]   # 20 ms > 16.7
+    assert src.read(0.1) is None and src.out_of_sync == 1
+    assert src.notes == ("1 stereo pair dropped (eyes captured more than half a frame apart)",)
+    src._caps = [FakeCapture((t - 0.040) * 1000.0, img), FakeCapture((t - 0.025) * 1000.0, img)]   # 15 ms: kept
+    assert src.read(0.1).t_capture == pytest.approx(t - 0.040, abs=1e-6)
+    assert src.out_of_sync == 1
+
+
 class FakeImgFrame:
     def __init__(self, t, seq=7):
         self.t, self.seq = t, seq
