@@ -73,8 +73,10 @@ def _nobody_check() -> tuple[list[str], str | None]:
         return [], "setpriv (util-linux) is not installed"
     pw = pwd.getpwnam("nobody")
     prefix = ["setpriv", f"--reuid={pw.pw_uid}", f"--regid={pw.pw_gid}", "--clear-groups"]
-    probe = subprocess.run([*prefix, sys.executable, "-c", "import uav_depth.cli.main"], capture_output=True,
-                           text=True, timeout=120, cwd="/")
+    # The daemon also starts this interpreter again (the parameter trial's child process).
+    probe = subprocess.run([*prefix, sys.executable, "-c", "import subprocess, sys, uav_depth.cli.main; "
+                            "subprocess.run([sys.executable, '-c', 'import uav_depth.daemon.trial'], check=True)"],
+                           capture_output=True, text=True, timeout=120, cwd="/")
     if probe.returncode != 0:
         last = (probe.stderr.strip().splitlines() or [f"exit {probe.returncode}"])[-1]
         return [], f"the user nobody cannot run {sys.executable} with uav_depth ({last})"
@@ -238,6 +240,8 @@ STARTUP_FAULTS = [
                  id="params-alias-bomb"),
     pytest.param(_setup_params(OVERSIZE_PARAMS), r"parameter file is \d+ bytes, more than the 64 KiB",
                  id="params-over-the-size-cap"),
+    pytest.param(_setup_config_bytes(b"source:\n  kind: synthetic\n  scene: {width: 100000, height: 100000}\n"),
+                 r"source\.scene\.width must be between 32 and 4096, but got 100000", id="scene-100000-px"),
     pytest.param(_setup_config_bytes(b"source:\n  kind: synthetic\n" + alias_bomb()),
                  r"config uses a YAML anchor \('l0'\) at line 3", id="config-alias-bomb"),
     pytest.param(_setup_params(b"sgbm:\n  p1: 600  # caf\xe9\n"), r"parameter file is not UTF-8 text \(byte 0xe9",
@@ -274,11 +278,16 @@ STARTUP_FAULTS = [
 ]
 
 
+#: The faults only an unprivileged user meets (root reads and writes whatever the modes say).
+AS_NOBODY = (_setup_key_unreadable, _setup_logdir_not_writable)
+
+
 @pytest.mark.parametrize("setup,message", STARTUP_FAULTS)
 def test_a_fault_in_a_file_is_one_line_and_exit_78_for_run_and_run_check(shared_dir, port, setup, message):
+    user = as_nobody() if setup in AS_NOBODY else None
     cfg = setup(shared_dir, port)
     for extra in ((), ("--check",)):
-        daemon = run_daemon(shared_dir, cfg, *extra, user=as_nobody())
+        daemon = run_daemon(shared_dir, cfg, *extra, user=user)
         try:
             code = daemon.wait(120)
         finally:
@@ -452,6 +461,13 @@ def _caught(pid: int) -> int:
     return 0
 
 
+def _blocked(pid: int) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("SigBlk:"):
+            return int(line.split()[1], 16)
+    return 0
+
+
 WANTED = sum(1 << (s - 1) for s in (signal.SIGHUP, signal.SIGINT, signal.SIGUSR1, signal.SIGTERM))
 
 
@@ -485,6 +501,56 @@ def test_a_signal_right_after_exec_is_handled_before_any_slow_import(tmp_path, s
         assert "SIGHUP before start-up: nothing to reload yet" in err
     else:
         assert f"stopped before start-up finished ({sig.name})" in err or "shutdown complete" in err
+
+
+def unit_exec_prefix() -> list[str]:
+    """What deploy/uav-depth.service puts before the daemon's command (``env --block-signal=...``)."""
+    unit = Path(__file__).resolve().parents[2] / "deploy" / "uav-depth.service"
+    line = next(ln for ln in unit.read_text().splitlines() if ln.startswith("ExecStart="))
+    words = line.split("=", 1)[1].split()
+    return words[:next(i for i, w in enumerate(words) if w.endswith("/bin/uav-depth"))]
+
+
+def test_the_unit_holds_exactly_the_signals_the_daemon_handles():
+    from uav_depth.cli.signals import HANDLED
+
+    prefix = unit_exec_prefix()
+    assert prefix[0] == "/usr/bin/env" and prefix[1].startswith("--block-signal=")
+    assert sorted(prefix[1].split("=", 1)[1].split(",")) == sorted(s.name[3:] for s in HANDLED)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP], ids=lambda s: s.name)
+def test_a_signal_sent_at_exec_under_the_units_start_is_handled_with_one_line(tmp_path, sig):
+    # Sent before the interpreter has run a line: only the unit's blocked start can keep it for the handlers.
+    rx = Receiver()
+    (tmp_path / "params.yaml").write_bytes(GOOD)
+    path = tmp_path / "run.yaml"
+    path.write_text(yaml.safe_dump(config(rx.port, tmp_path / "params.yaml")))
+    err_path = tmp_path / "stderr.txt"
+    proc = subprocess.Popen([*unit_exec_prefix(), sys.executable, "-m", "uav_depth.cli.main", "run", "--config",
+                             str(path)], stdout=subprocess.DEVNULL, stderr=open(err_path, "w"))
+    try:
+        deadline = time.monotonic() + 60
+        while _blocked(proc.pid) & WANTED != WANTED:     # env has blocked them (microseconds after exec)
+            assert time.monotonic() < deadline and proc.poll() is None, err_path.read_text()
+        proc.send_signal(sig)
+        if sig == signal.SIGHUP:
+            assert rx.wait(lambda: len(rx.of("DISTANCE_SENSOR")) >= 3, timeout=180), err_path.read_text()[-3000:]
+            proc.send_signal(signal.SIGTERM)
+        code = proc.wait(120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+        rx.close()
+    err = err_path.read_text()
+    assert code == 0, err[-3000:]
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-3000:]
+    assert f"({sig.name} sent before then: held blocked, handled now)" in err, err[-3000:]
+    if sig == signal.SIGHUP:
+        assert "SIGHUP before start-up: nothing to reload yet" in err
+    else:
+        assert f"stopped before start-up finished ({sig.name})" in err, err[-3000:]
 
 
 # -- replay, signing key path, free space -------------------------------------------------------------

@@ -157,7 +157,8 @@ def test_unit_lifecycle_settings_match_the_daemon_and_installer():
     assert s["Restart"] == ["on-failure"]
     # One definition: the exit code the CLI uses for a bad config is the one that stops restarts.
     assert s["RestartPreventExitStatus"] == [str(EXIT_CONFIG)]
-    assert s["ExecStart"] == [f"{VENV}/bin/uav-depth run --config /etc/uav-depth/config.yaml"]
+    assert s["ExecStart"] == [f"/usr/bin/env --block-signal=HUP,INT,TERM,USR1 {VENV}/bin/uav-depth run "
+                              "--config /etc/uav-depth/config.yaml"]
     assert s["User"] == ["uav-depth"] and s["SupplementaryGroups"] == ["video dialout"]
     sysusers = (DEPLOY / "uav-depth.sysusers").read_text()
     assert re.search(r"^m uav-depth video$", sysusers, re.M) and re.search(r"^m uav-depth dialout$", sysusers, re.M)
