@@ -52,8 +52,9 @@ def _check_files(files: list[str], calibration: str | None) -> int:
             try:
                 params = load_params(path)
                 note = _trial(params, path, calib, trials)
-            except (ConfigError, FileFormatError, CalibrationError) as exc:   # one line, as run's
-                print(f"uav-depth params: error: {exc}", file=sys.stderr, flush=True)
+            except (ConfigError, FileFormatError, CalibrationError) as exc:   # one line, as run's, naming the file
+                text = str(exc) if str(exc).startswith(path) else f"{path}: {exc}"
+                print(f"uav-depth params: error: {text}", file=sys.stderr, flush=True)
                 code = EXIT_CONFIG
                 continue
             print(f"{path}: valid, hash {params.hash()}; {note}", flush=True)

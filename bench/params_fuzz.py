@@ -1,0 +1,300 @@
+"""The parameter schema fuzzed against OpenCV, through ``params check`` and a flying daemon (issue 44).
+
+Draws ``--files`` random parameter files the schema accepts (half over each key's whole range,
+half with a search range that fits the camera, so that most reach OpenCV) plus every key at
+both of its bounds (the other keys at their defaults, a cross rule's partner moved out of the
+way), then:
+
+1. ``uav-depth params check --calibration CAMERA FILE...``: each file is one line; a child that
+   crashed or hung ("OpenCV crashed with SIG...", "did not finish") is a combination OpenCV cannot
+   take that the schema accepts, listed with its file. The checking process itself must never die.
+2. a real ``uav-depth run`` (synthetic source at the same camera, a pymavlink peer on loopback)
+   flying a good file: each fuzz file replaces the parameter file (rename, as the tuner writes
+   it); the daemon judges it (log line); a file it swaps in is replaced by the good one again at
+   once. The daemon must never die, and while the good parameters fly (trials included) the
+   DISTANCE_SENSOR stream must have no gap over ``--gap-ms``; the same gap figure is taken
+   first over ``--baseline-s`` without reloads, for the load's share.
+
+Prints one summary (counts, refusal reasons, crashes found, gaps, wall time and load average).
+
+    .venv/bin/python bench/params_fuzz.py --files 2000 --seed 0
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import math
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+
+from mavlink_peer import Receiver  # noqa: E402
+
+from uav_depth.core.errors import ConfigError  # noqa: E402
+from uav_depth.core.params import (DEFAULT_PARAMS, SPECS, check_computable, params_from_dict,  # noqa: E402
+                                   save_params)
+
+CLI = [sys.executable, "-m", "uav_depth.cli.main"]
+GOOD = DEFAULT_PARAMS.replace(**{"sgbm.num_disparities": 64})
+JUDGED = re.compile(r"parameters reloaded from|parameters rejected|rewritten with the same parameters")
+
+
+# -- drawing files the schema accepts -------------------------------------------------------------
+
+def _draw_value(spec, rng: np.random.Generator, fit_px: int | None) -> object:
+    if spec.choices:
+        return str(rng.choice(spec.choices))
+    if spec.kind is bool:
+        return bool(rng.integers(2))
+    if spec.kind is tuple:
+        x = np.sort(rng.uniform(0, 1, 2))
+        y = np.sort(rng.uniform(0, 1, 2))
+        return [round(float(x[0]), 3), round(float(y[0]), 3), round(float(max(x[1], x[0] + 0.01)), 3),
+                round(float(max(y[1], y[0] + 0.01)), 3)]
+    lo, hi = float(spec.lo), float(spec.hi)
+    if spec.key == "sgbm.num_disparities" and fit_px is not None:
+        hi = max(16.0, min(hi, fit_px))
+    if spec.key == "sgbm.min_disparity" and fit_px is not None:
+        lo, hi = -16.0, 16.0
+    # half uniform over the range, half log-uniform towards the low end (where the defaults live)
+    if rng.random() < 0.5 or lo < 0:
+        v = rng.uniform(lo, hi)
+    else:
+        v = math.exp(rng.uniform(math.log(max(lo, 1e-3)), math.log(max(hi, 1e-3))))
+    if spec.kind is float:
+        return round(float(v), 4)
+    v = int(round(v))
+    if spec.rule == "odd":
+        v = v if v % 2 else min(int(hi), v + 1)
+    elif spec.rule in ("multiple_of_16", "zero_or_multiple_of_16"):
+        v = 16 * int(round(v / 16))
+        v = max(16, v) if spec.rule == "multiple_of_16" else v
+    return int(min(max(v, spec.lo), spec.hi))
+
+
+def random_file(rng: np.random.Generator, fit_px: int | None) -> dict:
+    """A parameter mapping a parameter file may hold (the schema and check_computable, as load_params
+    applies them), drawn again until it is one."""
+    while True:
+        data: dict = {}
+        for spec in SPECS:
+            data.setdefault(spec.section, {})[spec.name] = _draw_value(spec, rng, fit_px)
+        try:
+            check_computable(params_from_dict(data))
+        except ConfigError:
+            continue
+        return data
+
+
+def bound_files() -> list[tuple[str, dict]]:
+    """Every numeric key at its lowest and highest accepted value, the rest at their defaults."""
+    out = []
+    for spec in SPECS:
+        if spec.lo is None or spec.kind is tuple:
+            continue
+        for which, value in (("lo", spec.lo), ("hi", spec.hi)):
+            data = GOOD.to_dict()
+            data[spec.section][spec.name] = spec.kind(value) if spec.rule != "odd" or int(value) % 2 else value + 1
+            if spec.rule == "positive" and not value > 0:
+                data[spec.section][spec.name] = 1e-3
+            sg = data["sgbm"]
+            if spec.key == "sgbm.p1":
+                sg["p2"] = max(sg["p2"], sg["p1"] + 1)
+            if spec.key == "sgbm.p2":
+                sg["p1"] = min(sg["p1"], sg["p2"] - 1)
+            out.append((f"{spec.key}={which}", data))
+    for mode in ("sgbm", "sgbm_3way", "hh", "hh4"):           # each mode at the highest uniqueness it takes
+        data = GOOD.to_dict()
+        data["sgbm"].update(mode=mode, uniqueness_ratio=99 if mode == "sgbm_3way" else 100)
+        out.append((f"mode={mode},uniqueness=max", data))
+    return out
+
+
+def write_files(root: Path, n: int, seed: int, fit_px: int) -> list[tuple[str, Path]]:
+    rng = np.random.default_rng(seed)
+    named = bound_files() + [(f"random-{i:05d}", random_file(rng, fit_px if i % 2 else None)) for i in range(n)]
+    out = []
+    for name, data in named:
+        path = root / f"{name.replace('=', '-').replace(',', '_')}.yaml"
+        path.write_text(yaml.safe_dump(data, sort_keys=False))
+        out.append((name, path))
+    return out
+
+
+# -- phase 1: params check ------------------------------------------------------------------------
+
+def check_all(files: list[tuple[str, Path]], calib: Path, chunk: int = 400) -> dict:
+    reasons: collections.Counter = collections.Counter()
+    crashes, valid, died = [], 0, []
+    for i in range(0, len(files), chunk):
+        part = [str(p) for _, p in files[i:i + chunk]]
+        proc = subprocess.run([*CLI, "params", "check", "--calibration", str(calib), *part],
+                              capture_output=True, text=True)
+        if proc.returncode not in (0, 78):
+            died.append((part[0], proc.returncode, proc.stderr[-500:]))
+        valid += sum(1 for ln in proc.stdout.splitlines() if ": valid, hash " in ln)
+        for ln in proc.stderr.splitlines():
+            if not ln.startswith("uav-depth params: error: "):
+                continue
+            if "crashed with SIG" in ln or "did not finish" in ln or "exited with code" in ln:
+                crashes.append(ln)
+            body = ln.split(": error: ", 1)[1].split(": ", 1)[-1]
+            reasons[re.sub(r"(?<![\w.])-?\d+(\.\d+)?(?!\w)", "N", body.split(", but got")[0])[:110]] += 1
+    return {"valid": valid, "refused": sum(reasons.values()), "reasons": reasons, "crashes": crashes,
+            "checker_died": died}
+
+
+# -- phase 2: a flying daemon ---------------------------------------------------------------------
+
+class Log:
+    """The daemon's stderr, each line stamped with time.monotonic() on arrival."""
+
+    def __init__(self, stream):
+        self.lines: list[tuple[float, str]] = []
+        self._t = threading.Thread(target=self._read, args=(stream,), daemon=True)
+        self._t.start()
+
+    def _read(self, stream) -> None:
+        for line in stream:
+            self.lines.append((time.monotonic(), line.rstrip("\n")))
+
+    def wait(self, pattern: re.Pattern, since: int, timeout: float) -> tuple[float, str] | None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            for t, ln in self.lines[since:]:
+                if pattern.search(ln):
+                    return t, ln
+            time.sleep(0.01)
+        return None
+
+
+def replace(path: Path, data: bytes) -> None:
+    tmp = path.with_name(path.name + ".new")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+def max_gap_ms(rx: Receiver, windows: list[tuple[float, float]]) -> tuple[float, int]:
+    """The longest DISTANCE_SENSOR gap inside the windows (ms), and the readings counted."""
+    arrivals = [t for t, _ in rx.timed("DISTANCE_SENSOR")]
+    worst, n = 0.0, 0
+    for a, b in windows:
+        inside = [t for t in arrivals if a <= t <= b]
+        n += len(inside)
+        worst = max([worst, *[(y - x) * 1000 for x, y in zip(inside, inside[1:])]])
+    return worst, n
+
+
+def fly_all(files: list[tuple[str, Path]], tmp: Path, scene: dict, baseline_s: float) -> dict:
+    rx = Receiver()
+    params = tmp / "flying.yaml"
+    save_params(GOOD, params)
+    good = params.read_bytes()
+    cfg = {"source": {"kind": "synthetic", "fps": 10, "scene": scene}, "params_file": str(params),
+           "ranging": {"max_age_ms": 499}, "mavlink": {"url": f"udpout:127.0.0.1:{rx.port}", "rate_hz": 20},
+           "service": {"status_interval_s": 5.0, "params_poll_s": 1.0}}
+    (tmp / "run.yaml").write_text(yaml.safe_dump(cfg))
+    proc = subprocess.Popen([*CLI, "run", "--config", str(tmp / "run.yaml")], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    log = Log(proc.stderr)
+    out: dict = {"judged": 0, "swapped": 0, "refused": 0, "unjudged": [], "daemon_died": None}
+    try:
+        if log.wait(re.compile("ready:"), 0, 300) is None:
+            raise SystemExit("the daemon did not start:\n" + "\n".join(ln for _, ln in log.lines[-20:]))
+        t0 = time.monotonic()
+        time.sleep(baseline_s)
+        out["baseline"] = max_gap_ms(rx, [(t0, time.monotonic())])
+        windows, start = [], time.monotonic()
+        for name, path in files:
+            if proc.poll() is not None:
+                out["daemon_died"] = (name, proc.returncode)
+                break
+            mark = len(log.lines)
+            replace(params, path.read_bytes())
+            hit = log.wait(JUDGED, mark, 120)
+            if hit is None:
+                out["unjudged"].append(name)
+                continue
+            out["judged"] += 1
+            if "parameters reloaded" in hit[1]:
+                out["swapped"] += 1
+                windows.append((start, hit[0]))
+                mark = len(log.lines)
+                replace(params, good)
+                back = log.wait(re.compile("parameters reloaded from"), mark, 120)
+                start = back[0] if back else time.monotonic()
+            else:
+                out["refused"] += "parameters rejected" in hit[1]
+        windows.append((start, time.monotonic()))
+        out["fuzz"] = max_gap_ms(rx, windows)
+        out["fuzz_s"] = time.monotonic() - t0 - baseline_s
+    finally:
+        if proc.poll() is None:
+            proc.terminate()
+            proc.wait(60)
+        elif out["daemon_died"] is None:
+            out["daemon_died"] = ("(after the last file)", proc.returncode)
+        rx.close()
+    out["tracebacks"] = sum("Traceback" in ln for _, ln in log.lines)
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--files", type=int, default=2000, help="random files (besides the bounds)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--width", type=int, default=640)
+    ap.add_argument("--height", type=int, default=360)
+    ap.add_argument("--gap-ms", type=float, default=200.0)
+    ap.add_argument("--baseline-s", type=float, default=20.0)
+    ap.add_argument("--skip-daemon", action="store_true", help="only params check")
+    args = ap.parse_args()
+    t_start = time.monotonic()
+    scene = {"width": args.width, "height": args.height, "focal_px": args.width * 0.55, "branch_distance_m": 0.8,
+             "seed": 1}
+    with tempfile.TemporaryDirectory(prefix="params-fuzz-") as d:
+        tmp = Path(d)
+        calib = tmp / "camera.yaml"
+        calib.write_text(yaml.safe_dump({"focal_px": scene["focal_px"], "baseline_m": 0.063,
+                                         "width": args.width, "height": args.height}))
+        files = write_files(tmp, args.files, args.seed, fit_px=args.width // 3)
+        print(f"{len(files)} files: {len(files) - args.files} at a key's bound, {args.files} random "
+              f"(seed {args.seed}); camera {args.width}x{args.height}", flush=True)
+        t = time.monotonic()
+        checked = check_all(files, calib)
+        print(f"params check: {checked['valid']} valid, {checked['refused']} refused, "
+              f"{len(checked['crashes'])} OpenCV crashes or hangs caught in the child, checker died "
+              f"{len(checked['checker_died'])} times ({time.monotonic() - t:.0f} s)", flush=True)
+        for reason, n in checked["reasons"].most_common(12):
+            print(f"  {n:5d}  {reason}")
+        for line in checked["crashes"][:20]:
+            print(f"  CRASH {line}")
+        fly = None if args.skip_daemon else fly_all(files, tmp, scene, args.baseline_s)
+    if fly is not None:
+        base, fuzz = fly["baseline"], fly.get("fuzz", (math.nan, 0))
+        print(f"daemon: {fly['judged']} judged ({fly['swapped']} swapped in and back, {fly['refused']} refused), "
+              f"{len(fly['unjudged'])} not judged within 120 s, died: {fly['daemon_died'] or 'never'}, "
+              f"tracebacks {fly['tracebacks']} ({fly.get('fuzz_s', math.nan):.0f} s)")
+        print(f"DISTANCE_SENSOR gaps while the good parameters flew: worst {fuzz[0]:.0f} ms over {fuzz[1]} "
+              f"readings (goal <= {args.gap_ms:g} ms); without reloads first: worst {base[0]:.0f} ms over "
+              f"{base[1]} readings")
+    print(f"wall time {time.monotonic() - t_start:.0f} s; load average {os.getloadavg()[0]:.1f} on "
+          f"{os.cpu_count()} CPUs")
+    ok = (not checked["crashes"] and not checked["checker_died"]
+          and (fly is None or (fly["daemon_died"] is None and fly.get("fuzz", (math.inf,))[0] <= args.gap_ms)))
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
