@@ -280,6 +280,8 @@ def main() -> int:
             print(f"  {n:5d}  {reason}")
         for line in checked["crashes"][:20]:
             print(f"  CRASH {line}")
+        for first, code, tail in checked["checker_died"]:
+            print(f"  params check DIED (exit {code}) on the chunk from {first}: {tail.strip().splitlines()[-1:]}")
         fly = None if args.skip_daemon else fly_all(files, tmp, scene, args.baseline_s)
     if fly is not None:
         base, fuzz = fly["baseline"], fly.get("fuzz", (math.nan, 0))

@@ -128,7 +128,13 @@ def build_stage(params: StereoParams, origin: str, ranging: RangingConfig, calib
     """
     w, h = calibration.width, calibration.height
     check_image_size(params, w, h, origin)
-    stage = make_stage(params, origin, ranging, calibration, roi)
+    try:
+        stage = make_stage(params, origin, ranging, calibration, roi)
+    except ConfigError:
+        raise
+    except Exception as exc:   # a combination no rule foresaw: one line naming the file, not a traceback
+        raise ConfigError("(parameters)", "must build a flight stage", f"{type(exc).__name__}: {exc}",
+                          origin) from exc
     warning = check_roi_against_compute(roi, params, w, h)
     if warning:
         log.warning("%s", warning)
