@@ -3,7 +3,7 @@
 Draws ``--files`` random parameter files the schema accepts (half over each key's whole range,
 half with a search range that fits the camera, so that most reach OpenCV) plus every key at
 both of its bounds (the other keys at their defaults, a cross rule's partner moved out of the
-way), then:
+way) and two hostile files (a 1 KB YAML alias bomb, a file past the 64 KiB cap), then:
 
 1. ``uav-depth params check --calibration CAMERA FILE...``: each file is one line; a child that
    crashed or hung ("OpenCV crashed with SIG...", "did not finish") is a combination OpenCV cannot
@@ -121,10 +121,20 @@ def bound_files() -> list[tuple[str, dict]]:
     return out
 
 
+def hostile_files(root: Path) -> list[tuple[str, Path]]:
+    """Files no parser should take long over: a 1 KB alias bomb, a file past the 64 KiB cap."""
+    bomb = ['l0: &l0 ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
+    bomb += [f"l{i}: &l{i} [" + ", ".join([f"*l{i - 1}"] * 9) + "]" for i in range(1, 10)]
+    (root / "hostile-alias-bomb.yaml").write_text("\n".join(bomb) + "\n")
+    (root / "hostile-oversize.yaml").write_text(yaml.safe_dump(GOOD.to_dict()) + "# padding\n" * 7000)
+    return [("hostile: alias bomb", root / "hostile-alias-bomb.yaml"),
+            ("hostile: 70 KB", root / "hostile-oversize.yaml")]
+
+
 def write_files(root: Path, n: int, seed: int, fit_px: int) -> list[tuple[str, Path]]:
     rng = np.random.default_rng(seed)
     named = bound_files() + [(f"random-{i:05d}", random_file(rng, fit_px if i % 2 else None)) for i in range(n)]
-    out = []
+    out = hostile_files(root)
     for name, data in named:
         path = root / f"{name.replace('=', '-').replace(',', '_')}.yaml"
         path.write_text(yaml.safe_dump(data, sort_keys=False))
@@ -269,7 +279,7 @@ def main() -> int:
         calib.write_text(yaml.safe_dump({"focal_px": scene["focal_px"], "baseline_m": 0.063,
                                          "width": args.width, "height": args.height}))
         files = write_files(tmp, args.files, args.seed, fit_px=args.width // 3)
-        print(f"{len(files)} files: {len(files) - args.files} at a key's bound, {args.files} random "
+        print(f"{len(files)} files: 2 hostile, {len(files) - args.files - 2} at a key's bound, {args.files} random "
               f"(seed {args.seed}); camera {args.width}x{args.height}", flush=True)
         t = time.monotonic()
         checked = check_all(files, calib)
