@@ -126,10 +126,19 @@ class Trials:
         return b"", f"the trial process exited with code {code} before answering{_tail(self._stderr)}", code
 
     def close(self) -> None:
-        """End the child (if any) now; a trial in progress on another thread then fails."""
-        proc, self._proc = self._proc, None
-        if proc is not None:
-            _end(proc)
+        """End the child (if any) now; a trial in progress on another thread then fails (that thread,
+        waiting on the child's pipe, reaps it: the pipe is not closed under it)."""
+        proc = self._proc
+        if proc is None:
+            return
+        if self._lock.acquire(blocking=False):
+            try:
+                self._proc = None
+                _end(proc)
+            finally:
+                self._lock.release()
+        else:
+            proc.kill()
 
     def _child(self) -> subprocess.Popen[bytes]:
         proc = self._proc
@@ -137,6 +146,8 @@ class Trials:
             return proc
         if proc is not None:
             _end(proc)
+        if self._stderr is not None:
+            self._stderr.close()
         self._stderr = tempfile.TemporaryFile()
         self._proc = subprocess.Popen([sys.executable, "-m", "uav_depth.daemon.trial"], stdin=subprocess.PIPE,
                                       stdout=subprocess.PIPE, stderr=self._stderr, close_fds=True)

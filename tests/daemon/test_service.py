@@ -312,3 +312,17 @@ def test_nothing_is_sent_after_shutdown_began(rx, params_file):
     after = [m.get_type() for t, m in rx.msgs if t > t_stopping and m.get_type() != "HEARTBEAT"]
     assert after == [], after
     assert [m.system_status for t, m in rx.msgs if m.get_type() == "HEARTBEAT" and t >= t_stopping] == [7]  # POWEROFF
+
+
+def test_what_the_source_counts_is_in_the_status_line(rx, params_file):
+    # A two-camera UVC rig counts the pairs it dropped as out of sync (daemon/sources/uvc.py); the
+    # status line carries whatever the source says there.
+    from uav_depth.daemon.sources import create_source
+
+    cfg = config(rx, params_file=str(params_file))
+    source = create_source(cfg.source)
+    source.notes = ("3 stereo pairs dropped (eyes captured more than half a frame apart)",)
+    svc = Service(cfg, source=source)
+    with Running(svc):
+        assert rx.wait(lambda: svc.stats.frames >= 1, PATIENCE_S)
+        assert svc.status_line().endswith(", 3 stereo pairs dropped (eyes captured more than half a frame apart)")
