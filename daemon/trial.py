@@ -3,8 +3,8 @@
 OpenCV is native code: parameters it cannot take may kill the process (SIGFPE from a division
 by zero, SIGSEGV) instead of raising, and no Python handler can catch that. So the first run of
 a new parameter set, the test render (:func:`uav_depth.daemon.stage.test_render`), happens in a
-child process (``python -m uav_depth.daemon.trial``), before the parameters are swapped in, at
-start-up, by ``run --check`` and by ``params check``. A child that dies of a signal, exits
+child process (``python -m uav_depth.daemon.trial_child``), before the parameters are swapped
+in, at start-up, by ``run --check`` and by ``params check``. A child that dies of a signal, exits
 without answering, or does not answer within the time bound refuses the parameters with one
 :class:`~uav_depth.core.errors.ConfigError` naming the file and what happened ("OpenCV crashed
 with SIGFPE on the test render"); the daemon keeps flying what it flies.
@@ -20,7 +20,6 @@ waits in ``select`` without the GIL.
 from __future__ import annotations
 
 import json
-import logging
 import os
 import pickle
 import select
@@ -39,7 +38,6 @@ from uav_depth.core.errors import ConfigError
 from uav_depth.core.params import StereoParams
 from uav_depth.daemon.ranging import RangingConfig
 
-log = logging.getLogger("uav_depth.trial")
 
 #: The longest a trial may take, start of the child included, unless the caller says otherwise.
 TIMEOUT_S = 30.0
@@ -48,7 +46,8 @@ TIMEOUT_S = 30.0
 IDLE_S = 60.0
 #: How much the child lowers its priority below the daemon's.
 NICENESS = 10
-_LEN = struct.Struct("!I")
+#: The length prefix of a pickled job on the child's stdin.
+LEN = struct.Struct("!I")
 
 
 @dataclass(frozen=True)
@@ -105,7 +104,7 @@ class Trials:
         except OSError as exc:      # this interpreter cannot be started again (permissions, no memory)
             return b"", f"the trial process could not be started ({type(exc).__name__}: {exc})", None
         try:
-            os.write(proc.stdin.fileno(), _LEN.pack(len(blob)) + blob)
+            os.write(proc.stdin.fileno(), LEN.pack(len(blob)) + blob)
             line = self._answer(proc)
         except TimeoutError:
             self._proc = None
@@ -149,8 +148,9 @@ class Trials:
         if self._stderr is not None:
             self._stderr.close()
         self._stderr = tempfile.TemporaryFile()
-        self._proc = subprocess.Popen([sys.executable, "-m", "uav_depth.daemon.trial"], stdin=subprocess.PIPE,
-                                      stdout=subprocess.PIPE, stderr=self._stderr, close_fds=True)
+        self._proc = subprocess.Popen([sys.executable, "-m", "uav_depth.daemon.trial_child"],
+                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr,
+                                      close_fds=True)
         self.started += 1
         return self._proc
 
@@ -192,49 +192,3 @@ def _tail(stderr: Any) -> str:
     except (OSError, ValueError):
         return ""
     return f" ({lines[-1].strip()})" if lines else ""
-
-
-# -- the child ------------------------------------------------------------------------------------
-
-def _read_exactly(fd: int, n: int) -> bytes:
-    buf = b""
-    while len(buf) < n:
-        chunk = os.read(fd, n - len(buf))
-        if not chunk:
-            return b""
-        buf += chunk
-    return buf
-
-
-def _serve(fd_in: int, out: Any) -> int:
-    from uav_depth.daemon.stage import make_stage, test_render   # OpenCV: imported here, in the child
-
-    while True:
-        ready, _, _ = select.select([fd_in], [], [], IDLE_S)
-        header = _read_exactly(fd_in, _LEN.size) if ready else b""
-        if not header:
-            return 0                # idle, or the parent went: nothing more to try
-        job: Job = pickle.loads(_read_exactly(fd_in, _LEN.unpack(header)[0]))
-        try:
-            stage = make_stage(job.params, job.origin, job.ranging, job.calibration, job.roi)
-            why, z = test_render(stage, job.calibration.width, job.calibration.height)
-            answer: dict[str, Any] = {"why": why, "z": z}
-        except Exception as exc:    # a Python-level failure is an answer; only a native crash is not
-            answer = {"error": f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}"}
-        out.write(json.dumps(answer).encode() + b"\n")
-        out.flush()
-
-
-def main() -> int:
-    try:
-        os.nice(NICENESS)           # the stereo thread first; refused under some filters: run as we are
-    except OSError:
-        pass
-    signal.signal(signal.SIGINT, signal.SIG_IGN)     # a Ctrl-C is for the daemon, which ends the child
-    answers = os.fdopen(os.dup(1), "wb")
-    os.dup2(2, 1)                   # whatever a library prints goes to stderr, never into the answers
-    return _serve(0, answers)
-
-
-if __name__ == "__main__":
-    sys.exit(main())
