@@ -96,10 +96,12 @@ class Groups:
             pass
 
 
-def scheduler(settings: dict[str, str]):
-    """A preexec_fn applying Nice and the CPU scheduling policy as systemd does before exec."""
+def scheduler(settings: dict[str, str], pin: bool = True):
+    """A preexec_fn applying Nice and the CPU scheduling policy as systemd does before exec (``pin``: and
+    the two CPUs)."""
     def apply() -> None:
-        os.sched_setaffinity(0, CPUS)
+        if pin:
+            os.sched_setaffinity(0, CPUS)
         if "Nice" in settings:
             os.setpriority(os.PRIO_PROCESS, 0, int(settings["Nice"]))
         policy = settings.get("CPUSchedulingPolicy")
