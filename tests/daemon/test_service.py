@@ -284,18 +284,24 @@ def test_the_outlier_gate_is_touched_by_the_stereo_thread_only(rx, params_file, 
 
 
 def test_nothing_is_sent_after_shutdown_began(rx, params_file):
-    # The send clock is inside a send when the stop comes (held there by this link): that reading, and
-    # every other, must be on the wire before "stopping", never after it.
+    # The send clock is inside a send when the stop comes (held there by this link until "stopping" is
+    # queued, or 0.3 s at most): that reading, and every other, must be on the wire before "stopping".
     from uav_depth.daemon.mavlink_out import MavlinkLink
 
     in_send, release = threading.Event(), threading.Event()
 
     class HeldLink(MavlinkLink):
         def distance_sensor(self, *args, **kwargs):
-            if in_send.is_set() is False and rx.of("DISTANCE_SENSOR"):
+            if not in_send.is_set() and rx.of("DISTANCE_SENSOR"):
                 in_send.set()
                 release.wait(10)
             return super().distance_sensor(*args, **kwargs)
+
+        def statustext(self, text, severity="info"):
+            sent = super().statustext(text, severity)
+            if text == "uav-depth: stopping":
+                release.set()
+            return sent
 
     cfg = config(rx, params_file=str(params_file))
     svc = Service(cfg, link=HeldLink(cfg.mavlink, 0.05, 0.1))
@@ -304,7 +310,7 @@ def test_nothing_is_sent_after_shutdown_began(rx, params_file):
     runner.start()
     assert in_send.wait(PATIENCE_S), "no reading was sent"
     stop.set()
-    threading.Timer(0.5, release.set).start()    # shutdown has begun meanwhile
+    threading.Timer(0.3, release.set).start()
     runner.join(30)
     assert rx.wait(lambda: "uav-depth: stopping" in rx.texts(), 10)
     time.sleep(0.3)                               # anything still in flight on loopback
