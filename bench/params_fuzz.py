@@ -13,8 +13,9 @@ way) and two hostile files (a 1 KB YAML alias bomb, a file past the 64 KiB cap),
    flying a good file: each fuzz file replaces the parameter file (rename, as the tuner writes
    it); the daemon judges it (log line); a file it swaps in is replaced by the good one again at
    once. The daemon must never die, and while the good parameters fly (trials included) the
-   DISTANCE_SENSOR stream must have no gap over ``--gap-ms``; the same gap figure is taken
-   first over ``--baseline-s`` without reloads, for the load's share.
+   DISTANCE_SENSOR stream must have no gap over ``--gap-ms``. For the machine's share of the
+   gaps, the same figures are taken first over ``--baseline-s`` without reloads, and after
+   every fourth refused file over a control window as long as its trial, nothing judged.
 
 Prints one summary (counts, refusal reasons, crashes found, gaps, wall time and load average).
 
@@ -249,7 +250,7 @@ def fly_all(files: list[tuple[str, Path]], tmp: Path, scene: dict, baseline_s: f
         t0 = time.monotonic()
         time.sleep(baseline_s)
         out["baseline"] = gap_stats(rx, [(t0, time.monotonic())], goal_ms)
-        windows, start = [], time.monotonic()
+        windows, controls, start = [], [], time.monotonic()
         for name, path in files:
             if proc.poll() is not None:
                 out["daemon_died"] = (name, proc.returncode)
@@ -263,6 +264,11 @@ def fly_all(files: list[tuple[str, Path]], tmp: Path, scene: dict, baseline_s: f
             out["judged"] += 1
             swapped = "parameters reloaded" in hit[1]
             judgements.append((name, t_write, hit[0], "swapped" if swapped else "refused"))
+            if not swapped and len(judgements) % 4 == 0:
+                # a control window as long as the trial, nothing judged: the machine's share of the gaps
+                t_idle = time.monotonic()
+                time.sleep(hit[0] - t_write)
+                controls.append((t_idle, time.monotonic()))
             if swapped:
                 out["swapped"] += 1
                 windows.append((start, hit[0]))
@@ -273,6 +279,10 @@ def fly_all(files: list[tuple[str, Path]], tmp: Path, scene: dict, baseline_s: f
             else:
                 out["refused"] += "parameters rejected" in hit[1]
         windows.append((start, time.monotonic()))
+        trials = [(w, j) for name, w, j, verdict in judgements]
+        out["trials"] = gap_stats(rx, trials, goal_ms)
+        out["controls"] = gap_stats(rx, controls, goal_ms)
+        out["trial_s"], out["control_s"] = sum(j - w for w, j in trials), sum(b - a for a, b in controls)
         out["fuzz"] = gap_stats(rx, windows, goal_ms)
         out["fuzz"]["top"] = [(ms, during(judgements, a, b)) for ms, a, b in out["fuzz"]["top"]]
         out["fuzz_s"] = time.monotonic() - t0 - baseline_s
@@ -301,6 +311,11 @@ def report(fly: dict, goal_ms: float) -> bool:
                   f"{st['p99']:.0f} ms, over {goal_ms:g} ms: {st['over']}")
     for ms, what in (fuzz or {}).get("top", []):
         print(f"  {ms:6.0f} ms during: {what}")
+    if fuzz:
+        for label, st, secs in (("during trials (file written to judged)", fly["trials"], fly["trial_s"]),
+                                ("in control windows as long, nothing judged", fly["controls"], fly["control_s"])):
+            print(f"gaps {label}: {secs:.0f} s, {st['n']} readings, worst {st['worst']:.0f} ms, over "
+                  f"{goal_ms:g} ms: {st['over']} ({st['over'] / max(secs, 1e-9) * 60:.1f} a minute)")
     return fly["daemon_died"] is None and fuzz is not None and fuzz["over"] == 0
 
 
