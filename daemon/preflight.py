@@ -7,7 +7,7 @@ opened, which ``run`` would retry for ever, raises LinkError: exit 69), the log 
 (:func:`~uav_depth.daemon.framelog.ensure_log_dir`), the calibration
 (:func:`~uav_depth.daemon.stage.resolve_calibration`), the parameter file with every
 rule the daemon applies at start-up (:meth:`~uav_depth.daemon.stage.StageHolder.open`:
-the schema, OpenCV's limits at this image size, the test render), and the frame
+the schema, OpenCV's limits at this image size, the test render in a child process), and the frame
 source. What ``run`` refuses, this raises, with the same exception (so the same
 exit code); what ``run`` would only warn about comes back as a warning.
 
@@ -35,6 +35,7 @@ from uav_depth.daemon.sources import FrameSource
 from uav_depth.daemon.sources.oak import find_devices, import_depthai
 from uav_depth.daemon.sources.uvc import device_path, read_zed_conf
 from uav_depth.daemon.stage import StageHolder, resolve_calibration
+from uav_depth.daemon.trial import Trials
 
 HARDWARE = ("uvc", "oak")
 
@@ -110,11 +111,15 @@ def preflight(config: RunConfig, source: FrameSource) -> Preflight:
     report.checked.append(f"calibration f {rectified.focal_px:.1f} px, B {rectified.baseline_m:.4f} m, "
                           f"{rectified.width}x{rectified.height}")
     if config.params_file is not None and not config.params_file.exists():
-        report.warnings.append(f"parameter file {config.params_file} does not exist: run would fly the built-in "
-                               "manual defaults until it appears")
+        report.warnings.append(f"parameter file {config.params_file} does not exist: run would send nothing "
+                               "(blind: parameters unusable) until it appears")
     holder = StageHolder(str(config.params_file) if config.params_file else None, config.ranging,
-                         statustext=lambda text, severity: None)
-    stage = holder.open(rectified, roi)
+                         statustext=lambda text, severity: None, trials=Trials(config.service.trial_timeout_s))
+    try:
+        stage = holder.open(rectified, roi)
+    finally:
+        holder.close()
     report.limits = stage.ranger.limits
-    report.checked.append(f"parameters {stage.origin}: hash {stage.hash}, measure a test render in ROI {list(roi)}")
+    report.checked.append(f"parameters {stage.origin}: hash {stage.hash}, measure a test render in ROI {list(roi)} "
+                          "(run in a child process)")
     return report

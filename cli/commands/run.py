@@ -125,9 +125,10 @@ def stopped_before_start(signals, command: str, cleanup=None) -> int:
 def log_signals_installed(signals) -> None:
     import logging
 
-    ms = signals.installed_after_ms
+    ms, held = signals.installed_after_ms, signals.held
     logging.getLogger("uav_depth.service").info(
-        "signal handlers installed %s after exec", f"{ms:.0f} ms" if ms is not None else "(time unknown)")
+        "signal handlers installed %s after exec%s", f"{ms:.0f} ms" if ms is not None else "(time unknown)",
+        f" ({', '.join(held)} sent before then: held blocked, handled now)" if held else "")
 
 
 def check(config) -> int:

@@ -28,6 +28,8 @@ EPOCH_S = 1420070400
 TICKS_PER_S = 100_000
 #: A new stream may start at most this far (in timestamp ticks) behind our clock: one minute.
 NEW_STREAM_WINDOW = 60 * TICKS_PER_S
+#: A key file holds 64 hex digits, 32 bytes or a passphrase: anything larger is not a key file.
+KEY_FILE_MAX_BYTES = 4096
 
 
 def load_signing_key(path: Path) -> bytes:
@@ -47,8 +49,12 @@ def load_signing_key(path: Path) -> bytes:
                           f"{path} with mode {stat.S_IMODE(st.st_mode):04o}")
     if stat.S_ISDIR(st.st_mode):
         raise ConfigError(key, "must name a file, not a directory", str(path))
+    if not stat.S_ISREG(st.st_mode) or st.st_size > KEY_FILE_MAX_BYTES:
+        raise ConfigError(key, f"must be a regular file of at most {KEY_FILE_MAX_BYTES} bytes",
+                          f"{path} ({st.st_size} bytes)")
     try:
-        raw = path.read_bytes()
+        with open(path, "rb") as fh:
+            raw = fh.read(KEY_FILE_MAX_BYTES)
     except OSError as exc:   # the service user cannot read it (root-owned 0600): one line, exit 78
         raise ConfigError(key, f"must be readable by this user (uid {os.getuid()}): {exc.strerror}",
                           str(path)) from exc

@@ -141,3 +141,11 @@ def test_reference_documents_every_key():
     for kind in SOURCES:
         for key in source_keys(kind, SOURCES):
             assert f"`source.{key.name}` ({kind})" in table
+
+
+def test_a_setting_given_as_text_is_read_without_anchors_or_aliases():
+    from uav_depth.daemon.config import parse_value
+
+    assert parse_value("25") == 25 and parse_value("[1, 2]") == [1, 2] and parse_value("{a: 1}") == {"a": 1}
+    bomb = "[&a [x, x, x, x, x, x, x, x, x], [*a, *a, *a, *a, *a, *a, *a, *a, *a]]"
+    assert parse_value(bomb) == bomb     # stays text: the key's own rule names it, nothing is expanded

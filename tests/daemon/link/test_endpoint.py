@@ -157,6 +157,15 @@ def test_signing_key_file_permissions_and_signed_messages(tmp_path):
     key_file.chmod(0o600)
     key = load_signing_key(key_file)
     assert len(key) == 32
+    big = tmp_path / "big.key"
+    big.write_bytes(b"x" * 5000)
+    big.chmod(0o600)
+    with pytest.raises(ConfigError, match=r"must be a regular file of at most 4096 bytes, but got '.*big\.key \(5000 bytes\)'"):
+        load_signing_key(big)
+    fifo = tmp_path / "fifo.key"
+    os.mkfifo(fifo, 0o600)              # reading it would wait for a writer
+    with pytest.raises(ConfigError, match=r"must be a regular file of at most 4096 bytes"):
+        load_signing_key(fifo)
     hex_file = tmp_path / "hex.key"
     hex_file.write_text(key.hex())
     hex_file.chmod(0o600)
@@ -359,16 +368,19 @@ def test_the_service_is_unhealthy_once_the_link_thread_is_dead():
     from uav_depth.daemon.config import ServiceConfig
     from uav_depth.daemon.health import Health
     from uav_depth.daemon.notify import Notifier
+    from uav_depth.daemon.state import ServiceState
 
     port = free_port()
     peer = Receiver(f"udpin:127.0.0.1:{port}", sysid=1, compid=1, autopilot=True)
     cfg = MavlinkConfig(url=f"udpout:127.0.0.1:{port}")
     link = MavlinkLink(cfg).start()
     clock = SendClock(link, cfg, 0.3, estimate=lambda: None, limits=lambda: LIMITS, state=lambda: "boot").start()
-    health = Health(ServiceConfig(), Notifier(), lambda: "")
+    health = Health(ServiceConfig(), Notifier(), ServiceState(), lambda: "")
+    health.watch("mavlink-io", link)
+    health.watch("mavlink-clock", clock)
     try:
         assert link.wait_connected(2)
-        assert health.healthy(clock, {})
+        assert health.healthy()
 
         def dies(msg):            # the one seam: something on the I/O thread that even a catch-all lets through
             raise SystemExit("the I/O thread ends here")
@@ -377,7 +389,8 @@ def test_the_service_is_unhealthy_once_the_link_thread_is_dead():
         while link.alive and time.monotonic() < deadline:
             time.sleep(0.02)
         assert not link.alive
-        assert clock.alive and not health.healthy(clock, {})       # the watchdog is no longer fed
+        assert clock.alive and not health.healthy()                # the watchdog is no longer fed
+        assert health.dead == ("mavlink-io",)
     finally:
         clock.stop()
         link.close()
