@@ -59,27 +59,19 @@ import scenebench  # noqa: E402
 from uav_depth.cli import benchmark  # noqa: E402
 from uav_depth.core.disparity import DisparityPipeline, DisparityResult, flight_pipeline  # noqa: E402
 from uav_depth.core.params import DEFAULT_PARAMS  # noqa: E402
-from uav_depth.daemon.mavlink_out import distance_report  # noqa: E402
+from uav_depth.daemon.link.contract import distance_report  # noqa: E402
 from uav_depth.sim.scene import SceneConfig  # noqa: E402
 from uav_depth.sim.sweep import VARIANTS  # noqa: E402
 
-# The record is made the same way before and after issue 45's move (ranging, the frame interface and the flight
-# settings into the core, declared pipelines), so that an older commit can be recorded to compare with.
-try:
-    from uav_depth.core.disparity import FAITHFUL, MEASURED
-    from uav_depth.core.params.flight import flight_params
-    from uav_depth.core.ranging import Ranger, RangingConfig, default_roi
-    from uav_depth.daemon.estimate import Estimate
+from uav_depth.core.disparity import FAITHFUL, MEASURED  # noqa: E402
+from uav_depth.core.params.flight import flight_params  # noqa: E402
+from uav_depth.core.ranging import Ranger, RangingConfig, default_roi  # noqa: E402
+from uav_depth.daemon.estimate import Estimate  # noqa: E402
 
-    def pipeline(params: Any, smooth: bool) -> DisparityPipeline:
-        return DisparityPipeline(params, FAITHFUL if smooth else MEASURED)
-except ImportError:  # pragma: no cover - before the move
-    from uav_depth.daemon.ranging import Estimate, Ranger, RangingConfig, default_roi  # type: ignore[no-redef]
 
-    flight_params = benchmark.flight_params  # type: ignore[attr-defined]
+def pipeline(params: Any, smooth: bool) -> DisparityPipeline:
+    return DisparityPipeline(params, FAITHFUL if smooth else MEASURED)
 
-    def pipeline(params: Any, smooth: bool) -> DisparityPipeline:
-        return DisparityPipeline(params, refine=smooth)  # type: ignore[call-arg]
 
 SETS = ("near", "leafy", "real", "bench")
 #: The fixed clock every DISTANCE_SENSOR is built at: capture and "now" at 100 s after the start, fresh.

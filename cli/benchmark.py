@@ -202,8 +202,8 @@ def lever_variants(flight: StereoParams, rounds: int, naive_rounds: int) -> list
         p = p.replace(**change)
         out.append(Variant(name, p, r, note=note))
     diff = [f"{k}={v}" for k, v in _flat(flight).items() if _flat(p)[k] != v]
-    out.append(Variant("flight+WLS", flight, rounds, note="the flight file with WLS smoothing, no near check "
-                       "(how it flew before)"))
+    out.append(Variant("flight+WLS", flight, rounds, note="the flight file as the tuner's faithful mode "
+                       "computes it: WLS smoothing, no near check"))
     out.append(Variant("flight", flight, rounds, flies=True,
                        note="as it flies: no WLS smoothing, near check" + (f" ({', '.join(diff)})" if diff else "")))
     out.append(Variant("flight-1thread", flight, rounds, threads=1, flies=True, note="cv2.setNumThreads(1)"))
@@ -309,8 +309,8 @@ def bench(flight: StereoParams, frames: int = 12, rounds: int = 20, naive_rounds
     else:
         variants = [Variant("naive", DEFAULT_PARAMS, naive_rounds,
                             note="OpenCV sample: full frame, colour, SGBM+right+WLS"),
-                    Variant("flight+WLS", flight, rounds, note="the flight file with WLS smoothing, no near check "
-                            "(how it flew before)"),
+                    Variant("flight+WLS", flight, rounds, note="the flight file as the tuner's faithful "
+                            "mode computes it: WLS smoothing, no near check"),
                     Variant("flight-noSmooth", flight, rounds, smooth=False,
                             note="flight+WLS without the WLS smoothing (the smoothing's saving alone, no near check)"),
                     Variant("flight", flight, rounds, flies=True,

@@ -147,6 +147,11 @@ class FrameLogger:
         self._thread.start()
         return self
 
+    @property
+    def alive(self) -> bool:
+        """The writer runs, or never started because logging stopped first (it runs on after a stop)."""
+        return self._thread.is_alive() if self._thread is not None else self.stopped is not None
+
     def request(self) -> None:
         """Log the next processed frame whatever ``every_n`` says (on demand)."""
         self._demand.set()

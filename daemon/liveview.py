@@ -162,6 +162,11 @@ class LiveView:
         log.info("live view on %s (read-only; at most %g pictures/s)", self.url, self.config.max_fps)
         return self
 
+    @property
+    def alive(self) -> bool:
+        """The server thread runs."""
+        return self._thread is not None and self._thread.is_alive()
+
     @classmethod
     def bind(cls, config: LiveViewConfig, fb_px_m: float, status: Callable[[], dict[str, Any]]) -> "LiveView":
         """Build and start one; ConfigError naming ``liveview.port`` when the address cannot be bound."""

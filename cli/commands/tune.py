@@ -122,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from uav_depth.core import __version__
-    from uav_depth.cli.main import EXIT_ERROR, EXIT_INTERRUPTED
+    from uav_depth.cli.exit_codes import EXIT_ERROR, EXIT_INTERRUPTED
     from uav_depth.core.params import DEFAULT_PARAMS, load_params, save_params
 
     from uav_depth.tuning.objective import FITNESS

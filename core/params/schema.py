@@ -296,6 +296,10 @@ def params_from_dict(data: Any, source: str | None = None) -> StereoParams:
     sg = values["sgbm"]
     if not sg["p2"] > sg["p1"]:
         raise ConfigError("sgbm.p2", f"must be greater than sgbm.p1 ({sg['p1']})", sg["p2"], source)
+    if sg["min_disparity"] + sg["num_disparities"] - 1 < 1:
+        raise ConfigError("sgbm.num_disparities", f"must reach positive disparities: with sgbm.min_disparity "
+                          f"{sg['min_disparity']} the largest disparity searched (min_disparity + num_disparities - 1) "
+                          "must be at least 1 (ranging and the near pass divide by it)", sg["num_disparities"], source)
     if sg["mode"] == "sgbm_3way" and sg["uniqueness_ratio"] > OPENCV_3WAY_UNIQUENESS_MAX:
         raise ConfigError("sgbm.uniqueness_ratio", f"must be at most {OPENCV_3WAY_UNIQUENESS_MAX} with sgbm.mode "
                           "sgbm_3way (OpenCV's 3-way matcher divides by 100 - uniquenessRatio: 100 kills the "

@@ -26,7 +26,7 @@ import yaml
 
 from uav_depth.core.params.flight import flight_params
 from uav_depth.core.params import save_params
-from uav_depth.daemon.mavlink_enums import mavutil
+from uav_depth.daemon.link.vocabulary import mavutil
 from uav_depth.core.ranging import RangingConfig
 
 TREE_NED = (3.0, 0.0, -2.0)

@@ -89,7 +89,7 @@ def test_state_carries_the_frame_and_the_wire():
 
 
 def test_wire_fields_follow_the_send_clock_report():
-    from uav_depth.daemon.mavlink_out import distance_report
+    from uav_depth.daemon.link.contract import distance_report
 
     est = _estimate(t_capture=10.0)
     sent = wire_fields(distance_report(est, est.limits, 10.1, 0.5, 0.0))
