@@ -36,11 +36,10 @@ import numpy as np
 from uav_depth.cli.benchmark import machine_line
 from uav_depth.cli.sources import SOURCES
 from uav_depth.daemon.config import run_config_from_dict
-from uav_depth.daemon.ranging import RangingConfig
+from uav_depth.core.ranging import RangingConfig, Ranger
 from uav_depth.core.disparity import DisparityPipeline
-from uav_depth.daemon.mavlink_enums import mavutil
+from uav_depth.daemon.link.vocabulary import mavutil
 from uav_depth.core.params import DEFAULT_PARAMS, load_params
-from uav_depth.daemon.ranging import Ranger
 from uav_depth.sim.scene import Scene, SceneConfig, vary
 from uav_depth.daemon.service import Service
 

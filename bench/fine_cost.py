@@ -10,7 +10,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from uav_depth.cli.benchmark import Variant, flight_params, format_report, machine, make_frames, run
+from uav_depth.cli.benchmark import Variant, format_report, machine, make_frames, run
+from uav_depth.core.params.flight import flight_params
 from uav_depth.core.params import DEFAULT_PARAMS
 
 

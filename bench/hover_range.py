@@ -27,7 +27,7 @@ from scenebench import ROOT, render_cached
 from uav_depth.cli.benchmark import machine_line
 from uav_depth.core.disparity import flight_pipeline
 from uav_depth.core.params import load_params
-from uav_depth.daemon.ranging import WIRE_SIGMA_MAX_M, Ranger, RangingConfig
+from uav_depth.core.ranging import WIRE_SIGMA_MAX_M, Ranger, RangingConfig
 from uav_depth.sim.scene_config import SceneConfig
 
 FLIGHT_640 = ROOT / "deploy" / "params-flight-640x360.yaml"

@@ -31,7 +31,7 @@ from scenebench import (PARAM_SET_NAMES, Measurer, add_ranging_args, fmt_pct, pa
                         render_cached)
 
 from uav_depth.cli.benchmark import machine_line
-from uav_depth.daemon.ranging import RangingConfig
+from uav_depth.core.ranging import RangingConfig
 from uav_depth.sim.scene import SceneConfig, vary
 
 FARTHER_TOL = 0.05

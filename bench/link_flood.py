@@ -41,7 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from mavlink_peer import Receiver, free_port  # noqa: E402
 
 from uav_depth.core.params import DEFAULT_PARAMS, save_params  # noqa: E402
-from uav_depth.daemon.mavlink_enums import mavutil  # noqa: E402
+from uav_depth.daemon.link.vocabulary import mavutil  # noqa: E402
 
 MAX_AGE_MS = 300.0
 
@@ -226,9 +226,11 @@ def link_latency(args, transport: str = "udp") -> None:
     import threading
 
     from uav_depth.daemon.config import MavlinkConfig
-    from uav_depth.daemon.mavlink_out import MavlinkLink, SendClock
-    from uav_depth.daemon.ranging import Estimate, Measurement, RangeLimits
+    from uav_depth.daemon.link.clock import SendClock
+    from uav_depth.daemon.link.endpoint import MavlinkLink
+    from uav_depth.core.ranging import Measurement, RangeLimits
 
+    from uav_depth.daemon.estimate import Estimate
     limits = RangeLimits(0.3, 10.0, 0.5, 0.4)
     if transport == "tcp":
         port = free_port(socket.SOCK_STREAM)

@@ -4,7 +4,7 @@ For each parameter set (manual baseline = core.params DEFAULT_PARAMS, and
 deploy/params-flight.yaml), each scene variant and seed, a branch is placed at
 every distance of the sweep (1 cm steps by default) on 1280x720 synthetic pairs
 (focal 700 px, baseline 63 mm) and measured as the daemon does: the real
-pipeline, ``daemon.ranging.Ranger`` and ``mavlink_out.distance_report``. The truth is
+pipeline, ``core.ranging.Ranger`` and ``link.contract.distance_report``. The truth is
 the nearest significant object in the ranging region (sim/truth.py: at least 3 mm
 thick, at least 2 cm^2 visible; docs/scenes.md).
 
@@ -48,7 +48,7 @@ from scenebench import (PARAM_SET_NAMES, Measurer, add_ranging_args, flight_max_
                         ranging_config, rel_err, render_cached)
 
 from uav_depth.cli.benchmark import machine_line
-from uav_depth.daemon.ranging import RangingConfig
+from uav_depth.core.ranging import RangingConfig
 from uav_depth.sim.scene import SceneConfig
 from uav_depth.sim.sweep import QUICK_DISTANCES, VARIANTS
 

@@ -29,7 +29,7 @@ from uav_depth.cli.sources import SOURCES
 from uav_depth.core.params import load_params
 from uav_depth.daemon.config import load_run_config
 from uav_depth.core.disparity import DisparityResult
-from uav_depth.daemon.ranging import Ranger, resolve_roi
+from uav_depth.core.ranging import Ranger, resolve_roi
 from uav_depth.daemon.stage import build_stage
 from uav_depth.sim.scene import Pose, Scene
 from uav_depth.sim.sitl import rot_x, rot_y

@@ -4,10 +4,10 @@ Run: .venv/bin/python bench/ranging_quantile.py
 """
 import numpy as np
 from dataclasses import replace
-from uav_depth.cli.benchmark import make_frames, flight_params
+from uav_depth.cli.benchmark import make_frames
+from uav_depth.core.params.flight import flight_params
 from uav_depth.core.disparity import DisparityPipeline, DisparityResult
-from uav_depth.daemon.ranging import Ranger, default_roi
-from uav_depth.daemon.ranging import RangingConfig
+from uav_depth.core.ranging import Ranger, default_roi, RangingConfig
 frames = make_frames(24, seed=5)
 fp = flight_params()
 pipe = DisparityPipeline(fp)

@@ -3,7 +3,7 @@
 Data: the 17 Middlebury 2006 pairs (ThirdSize, about 463x370; view1.png left, view5.png
 right, disp1.png ground truth: disparity px = value / 3, 0 unknown), by default
 in ``../shared/data/middlebury2006`` next to the repository (``--data DIR``).
-Per scene and parameter file, ``daemon.ranging.Ranger`` (default RangingConfig) reads
+Per scene and parameter file, ``core.ranging.Ranger`` (default RangingConfig) reads
 the centre third of the image:
 
 - reference: on the ground-truth disparity (measured = ground truth, no confidence),
@@ -47,7 +47,7 @@ from uav_depth.core.calibration import Calibration
 from uav_depth.core.disparity import flight_pipeline
 from uav_depth.core.disparity.result import DisparityResult
 from uav_depth.core.params import DEFAULT_PARAMS
-from uav_depth.daemon.ranging import Ranger, RangingConfig, default_roi
+from uav_depth.core.ranging import Ranger, RangingConfig, default_roi
 
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "middlebury2006"
 SCENES = ("Baby1", "Baby2", "Baby3", "Bowling2", "Cloth1", "Cloth2", "Cloth3", "Cloth4", "Lampshade1",

@@ -2,7 +2,7 @@
 cached synthetic frames, and one frame measured as the daemon does and put on the wire.
 
 A frame goes through the real ``flight_pipeline``, the daemon's ``Ranger`` and
-``mavlink_out.distance_report``: the distance judged is what DISTANCE_SENSOR would carry
+``link.contract.distance_report``: the distance judged is what DISTANCE_SENSOR would carry
 when its condition is "measuring" (``current_distance`` in cm); "too close" is that
 report's condition (the wire's: a reading at or inside the minimum range, or an
 estimate the ranging marks ``too_close``).
@@ -23,8 +23,10 @@ import numpy as np
 
 from uav_depth.core.disparity import DisparityResult, flight_pipeline
 from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, load_params, read_provenance
-from uav_depth.daemon.mavlink_out import TOO_CLOSE, distance_report
-from uav_depth.daemon.ranging import Estimate, Ranger, RangingConfig
+from uav_depth.daemon.link.contract import distance_report
+from uav_depth.daemon.link.conditions import Condition
+from uav_depth.core.ranging import Ranger, RangingConfig
+from uav_depth.daemon.estimate import Estimate
 from uav_depth.sim.scene import SceneConfig
 from uav_depth.sim.sweep import render
 
@@ -119,7 +121,7 @@ class Measurer:
         est = Estimate(m, self.ranger.limits, now, now, 0, "bench", too_close=m.too_close)   # as the service does
         rep = distance_report(est, self.ranger.limits, now, 1.0, now)
         return {"reported_m": rep.current_distance / 100.0 if rep.valid else None,
-                "ranged_m": m.distance_m, "sigma_m": m.sigma_m, "too_close": rep.condition == TOO_CLOSE, "condition": rep.condition,
+                "ranged_m": m.distance_m, "sigma_m": m.sigma_m, "too_close": rep.condition is Condition.TOO_CLOSE, "condition": rep.condition,
                 "quality": rep.signal_quality, "ms": ms, "reason": m.reason}
 
 

@@ -4,7 +4,7 @@ The scene ``uav-depth sitl`` renders (deploy/examples/sitl.yaml: 640x360, its fl
 rig hovering ``--distances`` m from the branch surface with a small attitude and position jitter per
 frame (an autopilot's hover), fresh sensor noise per frame, over ``--seeds`` scenes; each frame goes
 through the daemon's own pipeline, ranging and DISTANCE_SENSOR encoding
-(:func:`uav_depth.daemon.mavlink_out.distance_report`). Printed per distance: frames sent as a
+(:func:`uav_depth.daemon.link.contract.distance_report`). Printed per distance: frames sent as a
 distance, the error (median, p95 of |error|), the share within 2 % and the share with |error| within
 2 sigma of the covariance on the wire, and the disparity error (input px) that the sigma model has to
 cover. Numbers, not assertions:
@@ -25,8 +25,9 @@ import numpy as np
 from uav_depth.cli.sources import SOURCES
 from uav_depth.core.params import load_params
 from uav_depth.daemon.config import load_run_config
-from uav_depth.daemon.mavlink_out import distance_report
-from uav_depth.daemon.ranging import Estimate, resolve_roi
+from uav_depth.daemon.link.contract import distance_report
+from uav_depth.core.ranging import resolve_roi
+from uav_depth.daemon.estimate import Estimate
 from uav_depth.daemon.stage import build_stage
 from uav_depth.sim.scene import Pose, Scene
 from uav_depth.sim.sitl import rot_x, rot_y

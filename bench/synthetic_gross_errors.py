@@ -3,10 +3,9 @@
 Run: .venv/bin/python bench/synthetic_gross_errors.py
 """
 import numpy as np
-from uav_depth.cli.benchmark import flight_params
+from uav_depth.core.params.flight import flight_params
 from uav_depth.core.disparity import DisparityPipeline
-from uav_depth.daemon.ranging import Ranger, default_roi
-from uav_depth.daemon.ranging import RangingConfig
+from uav_depth.core.ranging import Ranger, default_roi, RangingConfig
 from uav_depth.sim.scene import Scene, SceneConfig, vary
 fp = flight_params(); pipe = DisparityPipeline(fp)
 rng = np.random.default_rng(11); base = SceneConfig()

@@ -14,7 +14,7 @@ import time
 from uav_depth.core.calibration import calibration_from_dict
 from uav_depth.core.disparity import flight_pipeline
 from uav_depth.core.params import DEFAULT_PARAMS, load_params
-from uav_depth.daemon.ranging import Ranger, RangingConfig, resolve_roi
+from uav_depth.core.ranging import Ranger, RangingConfig, resolve_roi
 from uav_depth.daemon.stage import Stage, test_render
 
 CASES = [

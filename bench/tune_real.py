@@ -49,7 +49,7 @@ def truth_distance(gt: np.ndarray, cal) -> float | None:
     ROI: the branch truth each session carries, so the flown fitness and the farther gate see real distances."""
     from uav_depth.core.disparity import DisparityResult
     from uav_depth.core.params import DEFAULT_PARAMS
-    from uav_depth.daemon.ranging import Ranger, RangingConfig, resolve_roi
+    from uav_depth.core.ranging import Ranger, RangingConfig, resolve_roi
 
     h, w = gt.shape
     roi = resolve_roi(None, w, h)
@@ -59,7 +59,7 @@ def truth_distance(gt: np.ndarray, cal) -> float | None:
 def make_sessions(data: Path, work: Path) -> list[str]:
     from uav_depth.core.calibration import Calibration
     from uav_depth.core.session import SessionWriter
-    from uav_depth.daemon.ranging import resolve_roi
+    from uav_depth.core.ranging import resolve_roi
 
     scenes = sorted(p.name for p in data.iterdir() if (p / "view1.png").exists())
     for scene in scenes:
@@ -117,7 +117,7 @@ def branch_errors(test: Path, params_file: Path | None) -> list[float | None]:
     from uav_depth.core.disparity import flight_pipeline
     from uav_depth.core.params import DEFAULT_PARAMS, load_params
     from uav_depth.core.session import iter_frames
-    from uav_depth.daemon.ranging import Ranger, RangingConfig, resolve_roi
+    from uav_depth.core.ranging import Ranger, RangingConfig, resolve_roi
 
     params = load_params(params_file) if params_file else DEFAULT_PARAMS
     pipeline = flight_pipeline(params)

@@ -34,7 +34,7 @@ from uav_depth.cli.benchmark import machine_line  # noqa: E402
 from uav_depth.core.disparity import flight_pipeline  # noqa: E402
 from uav_depth.core.params import DEFAULT_PARAMS  # noqa: E402
 from uav_depth.core.session import iter_frames  # noqa: E402
-from uav_depth.daemon.ranging import resolve_roi  # noqa: E402
+from uav_depth.core.ranging import resolve_roi  # noqa: E402
 from uav_depth.tuning.frames import load_frame  # noqa: E402
 from uav_depth.tuning.objective import BRANCH_PX_PER_PCT, _branch, bench, flown_map, scored_box  # noqa: E402
 from uav_depth.tuning.space import FLOWN_KEYS, SchemaSpace, build  # noqa: E402

@@ -23,9 +23,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from real_ranging import DEFAULT_DATA, SCENES, calibration_for, load_scene  # noqa: E402
 
 from uav_depth.cli.benchmark import machine_line  # noqa: E402
-from uav_depth.core.disparity import DisparityPipeline, DisparityResult  # noqa: E402
+from uav_depth.core.disparity import FAITHFUL, DisparityPipeline, DisparityResult  # noqa: E402
 from uav_depth.core.params import DEFAULT_PARAMS, load_params  # noqa: E402
-from uav_depth.daemon.ranging import Ranger, RangingConfig, default_roi  # noqa: E402
+from uav_depth.core.ranging import Ranger, RangingConfig, default_roi  # noqa: E402
 from uav_depth.sim.scene import Scene, SceneConfig  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -51,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     out: dict[str, dict[str, list[float | None]]] = {}
     print(machine_line())
     for pname, params in sets.items():
-        pipe = DisparityPipeline(params, refine=True)
+        pipe = DisparityPipeline(params, FAITHFUL)
         for seed in range(args.seeds):
             for d in DISTANCES:
                 cfg = SceneConfig(seed=seed, branch_distance_m=d, branch_radius_m=0.03)

@@ -7,7 +7,7 @@ the machine is doing slows them alike and their ratio stays meaningful.
 
 One timed step is what the daemon does per frame after capture: the disparity
 pipeline (its stages timed by :class:`DisparityResult.timings_ms`) and the
-branch ranging (:class:`uav_depth.daemon.ranging.Ranger`). Capture, MAVLink
+branch ranging (:class:`uav_depth.core.ranging.Ranger`). Capture, MAVLink
 and the daemon's threads are not in it; their latency is the daemon's own.
 Benchmarks print numbers; nothing here asserts a time.
 """
@@ -25,16 +25,10 @@ import cv2
 import numpy as np
 
 from uav_depth.cli.progress import QUIET, Progress
-from uav_depth.core.disparity import DisparityPipeline, DisparityResult, flight_pipeline
-from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, disparity_search_range
+from uav_depth.core.disparity import FAITHFUL, MEASURED, DisparityPipeline, DisparityResult, flight_pipeline
+from uav_depth.core.params import DEFAULT_PARAMS, StereoParams
+from uav_depth.core.params.flight import flight_working_distance_m
 from uav_depth.sim.scene import Scene, SceneConfig, background_period_px, vary
-
-#: The paper's working distance: the pruning tool works 0.3..3 m from the branch.
-WORKING_NEAR_M, WORKING_FAR_M = 0.3, 3.0
-
-#: Where the pruning tool points: the centre third (SceneConfig.center_roi, ranging's default
-#: ROI), rounded outward so that it holds ranging's ROI at any image size.
-FLIGHT_ROI = (0.33, 0.33, 0.67, 0.67)
 
 
 @dataclass(frozen=True)
@@ -208,8 +202,8 @@ def lever_variants(flight: StereoParams, rounds: int, naive_rounds: int) -> list
         p = p.replace(**change)
         out.append(Variant(name, p, r, note=note))
     diff = [f"{k}={v}" for k, v in _flat(flight).items() if _flat(p)[k] != v]
-    out.append(Variant("flight+WLS", flight, rounds, note="the flight file with WLS smoothing, no near check "
-                       "(how it flew before)"))
+    out.append(Variant("flight+WLS", flight, rounds, note="the flight file as the tuner's faithful mode "
+                       "computes it: WLS smoothing, no near check"))
     out.append(Variant("flight", flight, rounds, flies=True,
                        note="as it flies: no WLS smoothing, near check" + (f" ({', '.join(diff)})" if diff else "")))
     out.append(Variant("flight-1thread", flight, rounds, threads=1, flies=True, note="cv2.setNumThreads(1)"))
@@ -224,8 +218,7 @@ def _flat(params: StereoParams) -> dict[str, Any]:
 
 def _ranger_factory() -> Callable[[StereoParams, BenchFrame], Callable[[Any], float | None]]:
     """The daemon's own ranging (defaults, centre third) as ``make(params, frame)(result) -> metres``."""
-    from uav_depth.daemon.ranging import RangingConfig
-    from uav_depth.daemon.ranging import Ranger, default_roi
+    from uav_depth.core.ranging import Ranger, RangingConfig, default_roi
 
     cache: dict[tuple[str, int, int], Any] = {}
 
@@ -262,8 +255,8 @@ def run(frames: Sequence[BenchFrame], variants: Sequence[Variant], progress: Pro
 
     ``progress``: a step line per frame timed (every variant of the round on it) on a terminal."""
     make_ranger = _ranger_factory()
-    pipes = {v.name: flight_pipeline(v.params) if v.flies else DisparityPipeline(v.params, refine=v.smooth)
-             for v in variants}
+    pipes = {v.name: flight_pipeline(v.params) if v.flies
+             else DisparityPipeline(v.params, FAITHFUL if v.smooth else MEASURED) for v in variants}
     results = {v.name: VariantResult(v) for v in variants}
     default_threads = cv2.getNumThreads()
     n_rounds = max(v.rounds for v in variants)
@@ -316,8 +309,8 @@ def bench(flight: StereoParams, frames: int = 12, rounds: int = 20, naive_rounds
     else:
         variants = [Variant("naive", DEFAULT_PARAMS, naive_rounds,
                             note="OpenCV sample: full frame, colour, SGBM+right+WLS"),
-                    Variant("flight+WLS", flight, rounds, note="the flight file with WLS smoothing, no near check "
-                            "(how it flew before)"),
+                    Variant("flight+WLS", flight, rounds, note="the flight file as the tuner's faithful "
+                            "mode computes it: WLS smoothing, no near check"),
                     Variant("flight-noSmooth", flight, rounds, smooth=False,
                             note="flight+WLS without the WLS smoothing (the smoothing's saving alone, no near check)"),
                     Variant("flight", flight, rounds, flies=True,
@@ -326,38 +319,8 @@ def bench(flight: StereoParams, frames: int = 12, rounds: int = 20, naive_rounds
     out["machine"] = machine()
     out["frames"] = {"n": len(fr), "width": width, "height": height, "seed": seed, "colour": True,
                      "truth_m": [f.truth_m for f in fr], "render_s_per_pair": render_s / max(1, len(fr))}
-    out["working_distance_m"] = [WORKING_NEAR_M, WORKING_FAR_M]
+    out["working_distance_m"] = list(flight_working_distance_m())
     return out
-
-
-#: The flight file's P1 per block pixel (OpenCV's sample rule: OPENCV_P1_PER_BLOCK_PX). SGBM charges P1 for every
-#: one-pixel step of disparity between neighbours, so a surface slanted in depth (a branch seen
-#: obliquely, a board at an angle) pays it all along; at 8 the match lags behind the slant and
-#: reads the near end farther. Measured (docs/ranging.md, *P1*, 2026-12-04): 8 -> 2 took the real
-#: pairs from 16 to 17 of 17 within 2 % (Plastic +2.50 -> +1.22 %), the oblique bench's frames
-#: farther than 2 % from 32 to 5 and the leafy 1 cm sweep's from 87 to 60, for readings about 0.7 %
-#: nearer in the median on plain synthetic branches (1.26 -> 1.98 % median abs error, all nearer).
-FLIGHT_P1_PER_BLOCK_PX = 2
-
-
-def flight_params(focal_px: float = 700.0, baseline_m: float = 0.063, scale: float = 0.5,
-                  block_size: int = 3, fine_disparities: int = 32) -> StereoParams:
-    """The recommended flight settings for a camera (ZED Mini at 1280x720 by default).
-
-    Centre third plus the search margin, half resolution, grey, SGBM 3-way, WLS
-    at the matched resolution, the disparity range of the 0.3..3 m working
-    distance, P2 by OpenCV's rule for one channel (32 x block area) and P1 a quarter of that
-    rule (2 x block area, :data:`FLIGHT_P1_PER_BLOCK_PX`), and the ranged object re-matched at
-    full resolution over ``fine_disparities`` (docs/ranging.md). ``deploy/params-flight.yaml``
-    is this for the defaults.
-    """
-    min_d, num_d = disparity_search_range(focal_px, baseline_m, WORKING_NEAR_M, scale=scale)
-    return DEFAULT_PARAMS.replace(**{
-        "sgbm.mode": "sgbm_3way", "sgbm.min_disparity": min_d, "sgbm.num_disparities": num_d,
-        "sgbm.block_size": block_size, "sgbm.p1": FLIGHT_P1_PER_BLOCK_PX * block_size ** 2,
-        "sgbm.p2": OPENCV_P2_PER_BLOCK_PX * block_size ** 2,
-        "compute.roi": list(FLIGHT_ROI), "compute.scale": scale, "compute.grey": True, "compute.wls_at": "matched",
-        "compute.fine_disparities": fine_disparities})
 
 
 def format_report(out: dict[str, Any]) -> str:
@@ -392,5 +355,4 @@ def format_report(out: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["BenchFrame", "Variant", "bench", "flight_params", "format_report", "lever_variants", "machine",
-           "make_frames", "run"]
+__all__ = ["BenchFrame", "Variant", "bench", "format_report", "lever_variants", "machine", "make_frames", "run"]

@@ -35,6 +35,12 @@ def params_table() -> str:
     return params_table_markdown()
 
 
+def wire_conditions() -> str:
+    from uav_depth.daemon.link.conditions import conditions_table_markdown
+
+    return conditions_table_markdown()
+
+
 def config_reference() -> str:
     from uav_depth.cli.sources import SOURCES
     from uav_depth.daemon.config import reference_markdown
@@ -47,6 +53,7 @@ TABLES: dict[str, Callable[[], str]] = {
     "commands": commands_table,
     "params_table": params_table,
     "config_reference": config_reference,
+    "wire_conditions": wire_conditions,
 }
 
 _BLOCK = re.compile(r"(<!-- generated: (\w+)[^>]*-->\n)(.*?)(\n<!-- end generated -->)", re.S)
@@ -60,6 +67,11 @@ def refresh(text: str) -> str:
             raise KeyError(f"unknown generated table {name!r} (known: {', '.join(TABLES)})")
         return m.group(1) + TABLES[name]() + m.group(4)
     return _BLOCK.sub(repl, text)
+
+
+def without_generated(text: str) -> str:
+    """``text`` with the body of every generated block left out: what was written by hand."""
+    return _BLOCK.sub(lambda m: m.group(1) + m.group(4), text)
 
 
 def blocks(text: str) -> list[str]:

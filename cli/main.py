@@ -13,21 +13,14 @@ import importlib
 import sys
 from typing import Sequence
 
+from uav_depth.cli.exit_codes import EXIT_CANTCREAT, EXIT_CONFIG, EXIT_ERROR, EXIT_INTERRUPTED
 from uav_depth.cli.signals import SIGNALS
 from uav_depth.core.errors import CalibrationError, ConfigError, DependencyError, OutputExistsError, UavDepthError
 
-#: Exit codes. EXIT_CONFIG is sysexits' EX_CONFIG: the systemd unit lists it in
-#: RestartPreventExitStatus so a typo in a config does not restart-loop.
-EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_CONFIG = 0, 1, 2, 130, 78
-#: sysexits' EX_UNAVAILABLE: `run` could not find its camera at start-up. Not in
-#: RestartPreventExitStatus, so systemd retries until the camera appears.
-EXIT_UNAVAILABLE = 69
 #: Subcommands that run the daemon: their signal handlers go in before anything else is imported.
 DAEMONS = ("run", "sitl")
-#: sysexits' EX_CANTCREAT: an output exists (a session) and --overwrite was not given.
-EXIT_CANTCREAT = 73
 
-#: name -> (module, one-line help). Modules are relative to uav_depth.
+#: name -> (module, one-line help).
 COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("uav_depth.cli.commands.demo", "synthesise a session and evaluate the pipeline on it (no hardware)"),
     "synth": ("uav_depth.cli.commands.synth", "write a synthetic stereo session with exact reference disparity"),
@@ -40,6 +33,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("uav_depth.cli.commands.run", "the on-board daemon: stereo -> branch distance -> MAVLink DISTANCE_SENSOR"),
     "sitl": ("uav_depth.cli.commands.sitl",
              "fly the daemon against a simulated autopilot: synthetic stereo rendered from its pose"),
+    "autopilot-params": ("uav_depth.cli.commands.autopilot_params",
+                         "print the autopilot's settings (ArduPilot or PX4) that fit the range the daemon sends"),
     "session": ("uav_depth.cli.commands.session", "make a session (log layout) from a folder of stereo pairs"),
     "check-rig": ("uav_depth.cli.commands.check_rig",
                   "measure the stereo rig's vertical misalignment (is it still rectified? can SGBM work?)"),

@@ -5,7 +5,7 @@ Lines go to stderr and only when stderr is a terminal, as tune's progress bar
 phase prints one line when it starts (``rendering 12 synthetic pairs ...``); a
 phase of many steps prints ``  WHAT done/total`` for the first step, then at most
 every ``every_s`` seconds, and for the last one, so that no terminal stays silent
-longer than one step (issue 15: "no silent phase over 3 s on a terminal").
+longer than one step: a user who sees nothing for seconds cannot tell work from a hang.
 """
 
 from __future__ import annotations

@@ -4,7 +4,10 @@
 and to open the camera. A signal in that window used to meet Python's defaults:
 SIGHUP and SIGUSR1 killed the process silently, SIGINT gave a KeyboardInterrupt
 traceback, SIGTERM exited -15. :func:`install` runs in :func:`uav_depth.cli.main.entry`
-before the subcommand table is even built; from then on:
+before the subcommand table is even built, and then unblocks the signals: the systemd
+unit starts the daemon with them blocked (``env --block-signal=HUP,INT,TERM,USR1``), so
+one sent while the interpreter itself starts waits for the handlers instead of killing
+the process. From then on:
 
 - SIGTERM, SIGINT: set :attr:`Signals.stop`; the command stops cleanly (exit 0)
   at its next check, or the service's main loop does;
@@ -52,6 +55,7 @@ class Signals:
         self.received: list[str] = []          # names, in order (for the start-up log)
         self.installed_after_ms: float | None = None
         self.at_exec = False                   # installed by entry(), before the slow imports
+        self.held: list[str] = []              # signals that arrived blocked, before the handlers were in
         self._on_reload: Callable[[], None] | None = None
         self._on_log_frame: Callable[[], None] | None = None
 
@@ -70,11 +74,18 @@ class Signals:
                 self._on_log_frame()
 
     def install(self, at_exec: bool = False) -> "Signals":
-        """Install the handlers (main thread only); records how long after exec that was."""
+        """Install the handlers (main thread only), then unblock the signals; records how long after exec.
+
+        The systemd unit starts the daemon with these signals blocked (``env --block-signal``), so one
+        that arrives while Python starts, before any handler can exist, waits instead of killing the
+        process silently (SIGINT: with a traceback); unblocking hands it to the handler now.
+        """
         for sig in HANDLED:
             signal.signal(sig, self._handle)
         self.at_exec = at_exec
         self.installed_after_ms = ms_since_exec()
+        self.held = sorted(sig.name for sig in signal.sigpending() if sig in HANDLED)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, HANDLED)
         return self
 
     def attach(self, on_reload: Callable[[], None], on_log_frame: Callable[[], None]) -> None:

@@ -47,6 +47,10 @@ EXTRA_OF_MODULE = {
 }
 
 
+class LinkError(UavDepthError):
+    """The MAVLink link cannot be opened as configured (a missing serial device, a port another program holds)."""
+
+
 class DependencyError(UavDepthError):
     """An optional dependency (an extra) is needed but not installed."""
 

@@ -1,8 +1,9 @@
-"""Files written so that a reader never sees half of one."""
+"""Files written so that a reader never sees half of one, and read no further than a bound."""
 
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
 from pathlib import Path
 
@@ -67,25 +68,66 @@ def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
     return path
 
 
-def read_text_file(path: str | os.PathLike[str], what: str) -> str:
-    """The UTF-8 text of ``path``; every way it cannot be read is one FileFormatError naming ``what``.
+#: The most a text file the project reads may hold unless its reader says otherwise (frame metadata, ...).
+MAX_TEXT_BYTES = 1 << 20
 
-    ``what``: what the file should be ("parameter file", "config", ...). Missing,
-    a directory, no permission, not UTF-8 or binary (NUL bytes): the message says
-    which, with the byte offset where the text is broken.
+
+def _kib(n: int) -> str:
+    return f"{n // 1024} KiB" if n >= 1024 else f"{n} bytes"
+
+
+def read_bounded(path: str | os.PathLike[str], what: str, max_bytes: int) -> bytes:
+    """The bytes of the regular file ``path``, at most ``max_bytes`` of them; else one FileFormatError.
+
+    Bounded whatever the path names: a FIFO or a device (``/dev/zero``) is refused before a byte is
+    read (opening does not wait for a writer), a file over ``max_bytes`` is refused by its size, and
+    a file that grows while it is read is read no further than the bound.
     """
     path = Path(path)
     try:
-        raw = path.read_bytes()
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
     except FileNotFoundError as exc:
         raise FileFormatError(f"{path}: {what} not found") from exc
-    except IsADirectoryError as exc:
-        raise FileFormatError(f"{path}: {what} is a directory, not a file") from exc
     except PermissionError as exc:
         raise FileFormatError(f"{path}: cannot read {what}: permission denied for this user "
                               f"(uid {os.getuid()})") from exc
     except OSError as exc:
         raise FileFormatError(f"{path}: cannot read {what} ({exc.strerror or exc})") from exc
+    try:
+        st = os.fstat(fd)
+        if stat.S_ISDIR(st.st_mode):
+            raise FileFormatError(f"{path}: {what} is a directory, not a file")
+        if not stat.S_ISREG(st.st_mode):
+            raise FileFormatError(f"{path}: {what} is not a regular file (a device, FIFO or socket)")
+        if st.st_size > max_bytes:
+            raise FileFormatError(f"{path}: {what} is {st.st_size} bytes, more than the {_kib(max_bytes)} "
+                                  f"a {what} may have")
+        chunks, left = [], max_bytes + 1
+        while left > 0:
+            chunk = os.read(fd, min(left, 1 << 16))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            left -= len(chunk)
+    except OSError as exc:
+        raise FileFormatError(f"{path}: cannot read {what} ({exc.strerror or exc})") from exc
+    finally:
+        os.close(fd)
+    raw = b"".join(chunks)
+    if len(raw) > max_bytes:
+        raise FileFormatError(f"{path}: {what} grew past the {_kib(max_bytes)} a {what} may have while it was read")
+    return raw
+
+
+def read_text_file(path: str | os.PathLike[str], what: str, max_bytes: int = MAX_TEXT_BYTES) -> str:
+    """The UTF-8 text of ``path``; every way it cannot be read is one FileFormatError naming ``what``.
+
+    ``what``: what the file should be ("parameter file", "config", ...). Missing,
+    a directory, not a regular file, larger than ``max_bytes``, no permission, not UTF-8
+    or binary (NUL bytes): the message says which, with the byte offset where the text is broken.
+    """
+    path = Path(path)
+    raw = read_bounded(path, what, max_bytes)
     nul = raw.find(b"\0")
     if nul >= 0:
         raise FileFormatError(f"{path}: {what} is a binary file, not text (NUL byte at offset {nul})")

@@ -4,21 +4,21 @@ The newest frame wins: older ones are dropped (counted), never queued, so the
 stereo stage always works on the latest view; a source with ``lossless`` true (replay
 for evaluation) waits for the slot instead, so every frame is processed. Camera loss (a SourceError, any
 driver error, or no frame for ``service.frame_timeout_s``): close, reopen with
-exponential back-off between ``reconnect_min_s`` and ``reconnect_max_s``. What the
-loss means for the link and the state is the caller's (``on_lost`` / ``on_back``).
+exponential back-off between ``reconnect_min_s`` and ``reconnect_max_s``; the loss and
+the return are written to the shared state, which the service's condition reads.
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import threading
 import time
-from typing import Callable, ContextManager
+from typing import Callable
 
 from uav_depth.core.errors import SourceError
 from uav_depth.daemon.config import ServiceConfig
 from uav_depth.daemon.sources import EndOfStream, Frame, FrameSource
+from uav_depth.daemon.state import ServiceState
 
 log = logging.getLogger("uav_depth.service")
 
@@ -53,23 +53,37 @@ class Mailbox:
 
 
 class Capture:
-    """The body of the ``capture`` thread (:meth:`run`) until ``stop`` is set or the source ends.
+    """The body of the ``capture`` thread (:meth:`run`) until the stop event is set or the source ends.
 
-    ``in_source``: a context manager marking a read/open (the stall check);
-    ``on_lost(why)`` / ``on_back()``: camera state changes; ``on_end(why)``: a
-    finite source delivered its last frame.
+    It writes its fields of the shared :class:`~uav_depth.daemon.state.ServiceState`
+    (``camera_ok``, ``camera_losses``, ``ended``, ``source_since``) and says a loss and a
+    return in one log line and one STATUSTEXT each (``announce(text, severity)``).
     """
 
-    def __init__(self, source: FrameSource, config: ServiceConfig, mailbox: Mailbox, stop: threading.Event, *,
-                 on_lost: Callable[[str], None], on_back: Callable[[], None], on_end: Callable[[str], None],
-                 in_source: Callable[[], ContextManager[None]] = contextlib.nullcontext):
+    def __init__(self, source: FrameSource, config: ServiceConfig, mailbox: Mailbox, state: ServiceState,
+                 announce: Callable[[str, str], object]):
         self.source = source
         self.config = config
         self.mailbox = mailbox
-        self.stop = stop
-        self.on_lost, self.on_back, self.on_end = on_lost, on_back, on_end
-        self.in_source = in_source
+        self.state = state
+        self.stop = state.stopping
+        self.announce = announce
         self.frames_in = 0
+        self._thread = threading.Thread(target=self.run, name="capture", daemon=True)
+
+    def start(self) -> "Capture":
+        self._thread.start()
+        return self
+
+    @property
+    def alive(self) -> bool:
+        """Reading, or ended with a finite source (the only way it ends before shutdown, but dying)."""
+        return self._thread.is_alive() or self.state.ended is not None
+
+    def join(self, timeout_s: float) -> bool:
+        if self._thread.ident is not None:
+            self._thread.join(timeout_s)
+        return not self._thread.is_alive()
 
     def reconnect(self) -> None:
         svc = self.config
@@ -82,7 +96,7 @@ class Capture:
             if self.stop.wait(delay):
                 return
             try:
-                with self.in_source():
+                with self.state.in_source():
                     self.source.open()
                 return
             except SourceError as exc:
@@ -92,20 +106,33 @@ class Capture:
             delay = min(delay * 2, svc.reconnect_max_s)
 
     def _lost(self, why: str) -> float:
-        self.on_lost(why)
+        st = self.state
+        if st.camera_ok:
+            st.camera_ok = False
+            st.camera_losses += 1
+            log.error("camera lost: %s; reconnecting (no measurement is sent meanwhile)", why)
+            self.announce("uav-depth: camera lost", "error")
         self.reconnect()
         return time.monotonic()
 
+    def _arrived(self) -> None:
+        if not self.state.camera_ok:
+            self.state.camera_ok = True
+            log.info("camera back: %s", self.source.describe())
+            self.announce("uav-depth: camera back", "notice")
+
     def run(self) -> None:
+        """Read until stopped; the source is open when this starts (start-up opened it)."""
         svc = self.config
+        self.state.camera_ok = True
         last = time.monotonic()
         while not self.stop.is_set():
             try:
-                with self.in_source():
+                with self.state.in_source():
                     frame = self.source.read(min(0.2, svc.frame_timeout_s))
             except EndOfStream as exc:
                 log.info("%s", exc)
-                self.on_end(str(exc))
+                self.state.ended = str(exc)
                 return
             except SourceError as exc:
                 last = self._lost(str(exc))
@@ -121,6 +148,6 @@ class Capture:
                 continue
             last = now
             self.frames_in += 1
-            self.on_back()
+            self._arrived()
             # A lossless source (replay with source.lossless) waits for the pipeline instead of dropping.
             self.mailbox.put(frame, self.stop if getattr(self.source, "lossless", False) else None)

@@ -35,8 +35,8 @@ from uav_depth.core.calibration import Calibration
 from uav_depth.core.errors import ConfigError
 from uav_depth.daemon.config import LoggingConfig
 from uav_depth.core.session import Session, SessionWriter
-from uav_depth.daemon.ranging import Estimate
-from uav_depth.daemon.sources.base import Frame
+from uav_depth.daemon.estimate import Estimate
+from uav_depth.core.frames import Frame
 
 log = logging.getLogger("uav_depth.framelog")
 
@@ -146,6 +146,11 @@ class FrameLogger:
         self._thread = threading.Thread(target=self._loop, name="frame-logger", daemon=True)
         self._thread.start()
         return self
+
+    @property
+    def alive(self) -> bool:
+        """The writer runs, or never started because logging stopped first (it runs on after a stop)."""
+        return self._thread.is_alive() if self._thread is not None else self.stopped is not None
 
     def request(self) -> None:
         """Log the next processed frame whatever ``every_n`` says (on demand)."""

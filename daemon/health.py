@@ -1,59 +1,38 @@
-"""What the service reports about itself: rolling figures, liveness, the status line, sd_notify.
+"""What the service reports about itself: liveness, the status line, sd_notify.
 
-:class:`Health` is written to by the service's threads (one attribute at a time:
-the frame and source timers, the stats) and read by the main loop, which calls
-:meth:`Health.tick` every 100 ms: WATCHDOG=1 while :meth:`Health.healthy`, and
-the status line to the log and to systemd's STATUS every ``status_interval_s``.
+:class:`Health` reads the shared :class:`~uav_depth.daemon.state.ServiceState` and the
+threads it watches; the main loop calls :meth:`Health.tick` every 100 ms: WATCHDOG=1
+while :meth:`Health.healthy` (every thread alive, nothing stuck), and the status line
+to the log and to systemd's STATUS every ``status_interval_s``.
 """
 
 from __future__ import annotations
 
-import collections
-import contextlib
 import logging
-import math
-import threading
 import time
-from dataclasses import dataclass, field
-from typing import Callable, Iterator, Mapping
+from typing import Callable, Protocol
 
 from uav_depth.daemon.config import ServiceConfig
-from uav_depth.daemon.mavlink_out import SendClock
+from uav_depth.daemon.link.clock import SendClock
 from uav_depth.daemon.notify import Notifier
-from uav_depth.daemon.ranging import Estimate
+from uav_depth.daemon.estimate import Estimate
+from uav_depth.daemon.state import ServiceState, Stats
 
 log = logging.getLogger("uav_depth.service")
 
 
-@dataclass
-class Stats:
-    """Rolling per-stage timings (ms) and counters for the status line and the benchmark."""
+class Alive(Protocol):
+    """A part that runs a thread of the service."""
 
-    window: int = 200
-    stages: dict[str, collections.deque] = field(default_factory=dict)
-    frames: int = 0
-    frame_times: collections.deque = field(default_factory=lambda: collections.deque(maxlen=200))
-
-    def add(self, t_done: float, timings: Mapping[str, float]) -> None:
-        self.frames += 1
-        self.frame_times.append(t_done)
-        for k, v in timings.items():
-            self.stages.setdefault(k, collections.deque(maxlen=self.window)).append(v)
-
-    def fps(self, now: float, span_s: float = 5.0) -> float:
-        recent = [t for t in self.frame_times if now - t <= span_s]
-        if len(recent) < 2:
-            return 0.0
-        return (len(recent) - 1) / max(recent[-1] - recent[0], 1e-6)
-
-    def median(self, stage: str) -> float:
-        vals = sorted(self.stages.get(stage, ()))
-        return vals[len(vals) // 2] if vals else math.nan
+    @property
+    def alive(self) -> bool: ...
 
 
 def status_line(stats: Stats, estimate: Estimate | None, clock: SendClock | None, params_hash: str | None,
-                camera_ok: bool, now: float | None = None) -> str:
-    """One line for the operator: fps, distance (or why none), timings, what was sent, the parameters."""
+                camera_ok: bool, now: float | None = None, notes: tuple[str, ...] = ()) -> str:
+    """One line for the operator: fps, distance (or why none), timings, what reached the autopilot (or that none
+    is heard: :meth:`SendClock.delivery`), the parameters; ``notes``: what else the operator must know (a dead
+    thread, stereo pairs dropped)."""
     now = time.monotonic() if now is None else now
     if estimate is None:
         dist = "no frame yet"
@@ -62,46 +41,52 @@ def status_line(stats: Stats, estimate: Estimate | None, clock: SendClock | None
         dist = f"distance {estimate.measurement.distance_m:.3f} m (q {estimate.measurement.quality}{truth})"
     else:
         dist = f"no measurement ({estimate.measurement.reason})"
-    sent = f"{clock.valid_sent}/{clock.ticks} valid" if clock else "0/0"
+    sent = clock.delivery(now) if clock else "nothing sent"
     return (f"{stats.fps(now):.1f} fps, {dist}, disparity {stats.median('disparity'):.0f} ms, "
-            f"latency {stats.median('latency'):.0f} ms, sent {sent}, "
-            f"params {params_hash or '-'}{'' if camera_ok else ', CAMERA LOST'}")
+            f"latency {stats.median('latency'):.0f} ms, {sent}, "
+            f"params {params_hash or '-'}{'' if camera_ok else ', CAMERA LOST'}"
+            + "".join(f", {note}" for note in notes))
 
 
 class Health:
-    """Liveness and reporting of one service. ``status``: builds the current status line."""
+    """Liveness and reporting of one service, run by the main loop (:meth:`tick` every 100 ms).
 
-    def __init__(self, config: ServiceConfig, notifier: Notifier, status: Callable[[], str]):
+    ``state``: the shared state (its stall timers are read here); ``status``: builds the
+    current status line. :meth:`watch` registers each thread the service starts: every
+    thread's death is a health failure, so WATCHDOG=1 stops and systemd restarts the daemon.
+    """
+
+    def __init__(self, config: ServiceConfig, notifier: Notifier, state: ServiceState, status: Callable[[], str]):
         self.config = config
         self.notifier = notifier
+        self.state = state
         self.status = status
-        self.stats = Stats()
-        self.busy_since: float | None = None     # when the stereo stage took its current frame
-        self.source_since: float | None = None   # when the capture thread entered the source (read/open)
+        self.watched: dict[str, Alive] = {}
+        self.dead: tuple[str, ...] = ()          # the threads found dead, once found (main thread)
         self._next_status = 0.0
         self._next_dog = 0.0
 
-    @contextlib.contextmanager
-    def in_source(self) -> Iterator[None]:
-        """Mark the capture thread as inside the source (a read or open) for the stall check."""
-        self.source_since = time.monotonic()
-        try:
-            yield
-        finally:
-            self.source_since = None
+    def watch(self, name: str, part: Alive) -> None:
+        """Watch the thread of ``part``: ``part.alive`` False while the service runs is a death (the watchdog
+        stops). Each part says what alive means for it (a finished source, a frame log that stopped on purpose)."""
+        self.watched[name] = part
 
-    def healthy(self, clock: SendClock | None, threads: Mapping[str, threading.Thread],
-                now: float | None = None) -> bool:
-        """True while every loop is alive and neither the stereo stage nor the source is stuck.
+    def healthy(self, now: float | None = None) -> bool:
+        """True while every watched thread lives and neither the stereo stage nor the source is stuck.
 
         Stuck: one frame in the stereo stage, or one read/open of the source, for longer
         than ``service.stall_timeout_s``. Then WATCHDOG=1 stops and systemd restarts us.
+        A thread found dead (the link's I/O thread included: ``link.alive``) is said once, in one error line.
         """
         now = time.monotonic() if now is None else now
+        dead = tuple(name for name, part in self.watched.items() if not part.alive)
+        if dead and dead != self.dead:
+            log.error("thread%s %s died: WATCHDOG=1 stops, so systemd restarts the daemon", "s" * (len(dead) > 1),
+                      ", ".join(dead))
+        self.dead = dead
         limit = self.config.stall_timeout_s
-        busy, reading = self.busy_since, self.source_since
-        return (clock is not None and clock.alive
-                and all(t.is_alive() for t in threads.values())
+        busy, reading = self.state.busy_since, self.state.source_since
+        return (bool(self.watched) and not dead
                 and (busy is None or now - busy < limit)
                 and (reading is None or now - reading < limit))
 
@@ -112,11 +97,12 @@ class Health:
         self.notifier.ready(status)
         self._next_status = time.monotonic() + self.config.status_interval_s
 
-    def tick(self, healthy: Callable[[float], bool], now: float | None = None) -> None:
+    def tick(self, now: float | None = None) -> None:
         """Called by the main loop: WATCHDOG=1 while healthy, the status line when due."""
         now = time.monotonic() if now is None else now
         wd = self.notifier.watchdog_s
-        if wd and now >= self._next_dog and healthy(now):
+        healthy = self.healthy(now)
+        if wd and now >= self._next_dog and healthy:
             self.notifier.watchdog()
             self._next_dog = now + wd / 3.0
         if now >= self._next_status:
@@ -128,7 +114,7 @@ class Health:
     def abandoned_detail(self, name: str, now: float | None = None) -> str:
         """Why thread ``name`` may be stuck, for the shutdown report ('' when unknown)."""
         now = time.monotonic() if now is None else now
-        busy, reading = self.busy_since, self.source_since
+        busy, reading = self.state.busy_since, self.state.source_since
         if name == "stereo" and busy:
             return f" (busy for {now - busy:.1f} s on a frame)"
         if name == "capture" and reading:

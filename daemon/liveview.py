@@ -68,7 +68,7 @@ class Offer:
     """What the stereo loop hands over per frame: references, never copies.
 
     ``left``: (H, W[, 3]) uint8 rectified left image; ``disparity``: (H, W) float32 px,
-    NaN where invalid; ``estimate``: the frame's :class:`~uav_depth.daemon.ranging.Estimate`;
+    NaN where invalid; ``estimate``: the frame's :class:`~uav_depth.daemon.estimate.Estimate`;
     ``roi``: the ranging region (x0, y0, x1, y1) px; ``params``: the StereoParams that
     computed it (their search range is the colour scale).
     """
@@ -161,6 +161,11 @@ class LiveView:
         self._thread.start()
         log.info("live view on %s (read-only; at most %g pictures/s)", self.url, self.config.max_fps)
         return self
+
+    @property
+    def alive(self) -> bool:
+        """The server thread runs."""
+        return self._thread is not None and self._thread.is_alive()
 
     @classmethod
     def bind(cls, config: LiveViewConfig, fb_px_m: float, status: Callable[[], dict[str, Any]]) -> "LiveView":

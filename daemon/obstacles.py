@@ -39,7 +39,7 @@ import numpy as np
 from uav_depth.core.disparity import DisparityPipeline
 from uav_depth.core.keys import Key
 from uav_depth.core.params import StereoParams
-from uav_depth.daemon.mavlink_enums import cm_down, wire_range_cm
+from uav_depth.daemon.link.vocabulary import cm_down, wire_range_cm
 from uav_depth.daemon.worker import NicedWorker
 
 log = logging.getLogger("uav_depth.obstacles")
@@ -147,7 +147,7 @@ def bins_cm(ranges_m: np.ndarray, confident: np.ndarray, min_cm: int, max_cm: in
 
 
 def limits_cm(min_distance_m: float, max_distance_m: float) -> tuple[int, int]:
-    """(min, max) cm as DISTANCE_SENSOR carries them (mavlink_enums.wire_range_cm), max <= 65533."""
+    """(min, max) cm as DISTANCE_SENSOR carries them (link.vocabulary.wire_range_cm), max <= 65533."""
     min_cm, max_cm = wire_range_cm(min_distance_m, max_distance_m)
     return min_cm, min(max_cm, 65533)
 

@@ -1,11 +1,13 @@
 """``uav-depth run --check``: load everything ``run`` would load, start nothing.
 
 The same functions as the service, in the same order of concern: the signing key
-(:func:`~uav_depth.daemon.mavlink_out.load_signing_key`), the log directory
+(:func:`~uav_depth.daemon.link.signing.load_signing_key`), the MAVLink link (opened
+and closed at once: :func:`~uav_depth.daemon.link.urls.try_open`; one that cannot be
+opened, which ``run`` would retry for ever, raises LinkError: exit 69), the log directory
 (:func:`~uav_depth.daemon.framelog.ensure_log_dir`), the calibration
 (:func:`~uav_depth.daemon.stage.resolve_calibration`), the parameter file with every
 rule the daemon applies at start-up (:meth:`~uav_depth.daemon.stage.StageHolder.open`:
-the schema, OpenCV's limits at this image size, the test render), and the frame
+the schema, OpenCV's limits at this image size, the test render in a child process), and the frame
 source. What ``run`` refuses, this raises, with the same exception (so the same
 exit code); what ``run`` would only warn about comes back as a warning.
 
@@ -21,27 +23,32 @@ import os
 from dataclasses import dataclass, field
 
 from uav_depth.core.calibration import Calibration
-from uav_depth.core.errors import SourceError
+from uav_depth.core.errors import LinkError, SourceError
 from uav_depth.core.params import load_params
 from uav_depth.core.rectify import Rectifier
 from uav_depth.daemon.config import RunConfig
 from uav_depth.daemon.framelog import ensure_log_dir, free_mb
-from uav_depth.daemon.mavlink_out import load_signing_key
-from uav_depth.daemon.ranging import resolve_roi
+from uav_depth.daemon.link.signing import load_signing_key
+from uav_depth.daemon.link.urls import try_open
+from uav_depth.core.ranging import RangeLimits, resolve_roi
 from uav_depth.daemon.sources import FrameSource
 from uav_depth.daemon.sources.oak import find_devices, import_depthai
 from uav_depth.daemon.sources.uvc import device_path, read_zed_conf
 from uav_depth.daemon.stage import StageHolder, resolve_calibration
+from uav_depth.daemon.trial import Trials
 
 HARDWARE = ("uvc", "oak")
 
 
 @dataclass
 class Preflight:
-    """What was checked (``checked``: one line each) and what ``run`` would warn about."""
+    """What was checked (``checked``: one line each), what ``run`` would warn about, and the range the
+    parameters measure (``limits``: what DISTANCE_SENSOR states; None when the calibration comes from
+    the device at start-up)."""
 
     checked: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    limits: RangeLimits | None = None
 
 
 def _hardware_calibration(config: RunConfig, report: Preflight) -> Calibration | None:
@@ -68,6 +75,12 @@ def preflight(config: RunConfig, source: FrameSource) -> Preflight:
     if mav.signing_key_file is not None:
         load_signing_key(mav.signing_key_file)
         report.checked.append(f"signing key {mav.signing_key_file}")
+    problem, note = try_open(mav.url, mav.baud, mav.bind_address)
+    if problem is not None:
+        raise LinkError(f"{problem}: run would retry every 0.25 s and send nothing")
+    report.checked.append(f"link {mav.url}" + ("" if note else " opens"))
+    if note is not None:
+        report.warnings.append(note)
     log = config.logging
     if log.dir is not None:
         ensure_log_dir(log.dir)
@@ -98,10 +111,15 @@ def preflight(config: RunConfig, source: FrameSource) -> Preflight:
     report.checked.append(f"calibration f {rectified.focal_px:.1f} px, B {rectified.baseline_m:.4f} m, "
                           f"{rectified.width}x{rectified.height}")
     if config.params_file is not None and not config.params_file.exists():
-        report.warnings.append(f"parameter file {config.params_file} does not exist: run would fly the built-in "
-                               "manual defaults until it appears")
+        report.warnings.append(f"parameter file {config.params_file} does not exist: run would send nothing "
+                               "(blind: parameters unusable) until it appears")
     holder = StageHolder(str(config.params_file) if config.params_file else None, config.ranging,
-                         statustext=lambda text, severity: None)
-    stage = holder.open(rectified, roi)
-    report.checked.append(f"parameters {stage.origin}: hash {stage.hash}, measure a test render in ROI {list(roi)}")
+                         statustext=lambda text, severity: None, trials=Trials(config.service.trial_timeout_s))
+    try:
+        stage = holder.open(rectified, roi)
+    finally:
+        holder.close()
+    report.limits = stage.ranger.limits
+    report.checked.append(f"parameters {stage.origin}: hash {stage.hash}, measure a test render in ROI {list(roi)} "
+                          "(run in a child process)")
     return report

@@ -203,6 +203,11 @@ class FileWatcher:
         self._watching.wait(2.0)
         return self
 
+    @property
+    def alive(self) -> bool:
+        """The watch runs (it ends only when its stop event is set, or by dying)."""
+        return self._thread is not None and self._thread.is_alive()
+
     def join(self, timeout_s: float) -> bool:
         if self._thread is not None:
             self._thread.join(timeout_s)

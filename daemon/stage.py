@@ -25,8 +25,9 @@ from uav_depth.core.calibration import Calibration
 from uav_depth.core.disparity import DisparityPipeline, flight_pipeline
 from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError, ParameterWarning
 from uav_depth.core.params import DEFAULT_PARAMS, StereoParams, check_image_size, load_params
-from uav_depth.daemon.ranging import Ranger, RangingConfig
+from uav_depth.core.ranging import RangeLimits, Ranger, RangingConfig
 from uav_depth.daemon.reload import file_signature, wait_until_complete
+from uav_depth.daemon.trial import Job, Trials
 
 log = logging.getLogger("uav_depth.service")
 
@@ -108,22 +109,40 @@ def test_render(stage: Stage, width: int, height: int, seed: int = 0) -> tuple[s
     return (None if m.valid else m.reason or "no measurement"), z
 
 
+def make_stage(params: StereoParams, origin: str, ranging: RangingConfig, calibration: Calibration,
+               roi: tuple[int, int, int, int]) -> Stage:
+    """The stage of ``params`` for this camera and ranging ROI, unchecked (see :func:`build_stage`)."""
+    return Stage(params, flight_pipeline(params), Ranger(ranging, calibration, roi, params), origin)
+
+
 def build_stage(params: StereoParams, origin: str, ranging: RangingConfig, calibration: Calibration,
-                roi: tuple[int, int, int, int]) -> Stage:
+                roi: tuple[int, int, int, int], trials: Trials | None = None) -> Stage:
     """Build the stage for ``params`` and check that it can measure; ConfigError when it cannot.
 
     Refused: parameters that cannot match anything at this image size
     (:func:`~uav_depth.core.params.check_image_size`) and parameters that measure
     nothing on :func:`test_render`. Warns when the ranging ROI leaves the matching region.
+    ``trials``: run the test render in that child process (:mod:`uav_depth.daemon.trial`), so
+    that an OpenCV crash on new parameters refuses them instead of ending this process; None
+    runs it here (benchmarks and tools that may crash with it).
     """
     w, h = calibration.width, calibration.height
     check_image_size(params, w, h, origin)
-    ranger = Ranger(ranging, calibration, roi, params)
+    try:
+        stage = make_stage(params, origin, ranging, calibration, roi)
+    except ConfigError:
+        raise
+    except Exception as exc:   # a combination no rule foresaw: one line naming the file, not a traceback
+        raise ConfigError("(parameters)", "must build a flight stage", f"{type(exc).__name__}: {exc}",
+                          origin) from exc
     warning = check_roi_against_compute(roi, params, w, h)
     if warning:
         log.warning("%s", warning)
-    stage = Stage(params, flight_pipeline(params), ranger, origin)
-    why, z = test_render(stage, w, h)
+    if trials is not None:
+        outcome = trials.run(Job(params, origin, ranging, calibration, roi))
+        why, z = outcome.why, outcome.distance_m
+    else:
+        why, z = test_render(stage, w, h)
     if why is not None:
         raise ConfigError("(parameters)", f"must measure a test render (random texture filling the view at "
                           f"{z:.2f} m, {w}x{h}, ranging ROI {list(roi)}); they measured nothing", why, origin)
@@ -145,20 +164,25 @@ class StageHolder:
     """The current :class:`Stage` and the parameter file it came from.
 
     ``params_file``: None runs the built-in manual defaults; ``statustext``: how a
-    reload is reported to the autopilot.
+    reload is reported to the autopilot; ``trials``: the child process every new
+    parameter set is first run in (:mod:`uav_depth.daemon.trial`; default: its own).
+    Written by one thread at a time: :meth:`open` before the watcher starts, then
+    :meth:`reload` on the watcher's thread only.
     """
 
     def __init__(self, params_file: str | None, ranging: RangingConfig, statustext: StatusText,
-                 stop: threading.Event | None = None):
+                 stop: threading.Event | None = None, trials: Trials | None = None):
         self.params_file = Path(params_file) if params_file is not None else None
         self.ranging = ranging
         self.statustext = statustext
         self.stop = stop or threading.Event()
+        self.trials = trials if trials is not None else Trials()
         self.rejected: str | None = None   # why the newest file was refused (None: it is what flies)
         self.stage: Stage | None = None
         self.signature: tuple[int, int, int] | None = None   # the file as last read (for the watcher)
         self._calibration: Calibration | None = None
         self._roi: tuple[int, int, int, int] | None = None
+        self._judged: tuple[int, ...] | None = None   # the file as last judged (loaded or refused)
         self._lock = threading.Lock()
 
     def _initial_params(self) -> tuple[StereoParams, str]:
@@ -172,6 +196,7 @@ class StageHolder:
             return DEFAULT_PARAMS, "built-in manual defaults"
         wait_until_complete(path, self.stop, timeout_s=STARTUP_WAIT_S)
         self.signature = file_signature(path)
+        self._judged = _identity(path)
         return load_params(path), str(path)
 
     def open(self, calibration: Calibration, roi: tuple[int, int, int, int]) -> Stage:
@@ -182,17 +207,34 @@ class StageHolder:
         return self.stage
 
     def build(self, params: StereoParams, origin: str) -> Stage:
+        """The checked stage of ``params``, its test render run in the child process."""
         assert self._calibration is not None and self._roi is not None
-        return build_stage(params, origin, self.ranging, self._calibration, self._roi)
+        return build_stage(params, origin, self.ranging, self._calibration, self._roi, self.trials)
+
+    def params(self) -> StereoParams:
+        """The parameters flying now (after :meth:`open`)."""
+        assert self.stage is not None
+        return self.stage.params
+
+    def limits(self) -> RangeLimits:
+        """The range the current stage states on the wire (after :meth:`open`)."""
+        assert self.stage is not None
+        return self.stage.ranger.limits
+
+    def close(self) -> None:
+        """End the trial child (a trial in progress fails, quietly once ``stop`` is set)."""
+        self.trials.close()
 
     def reload(self, path: Path | None = None) -> bool:
         """Re-read the parameter file; swap the stage if it is valid and new. Never raises.
 
-        The file is read once it is complete (:func:`~uav_depth.daemon.reload.wait_until_complete`).
-        Invalid file (unreadable, not UTF-8, not YAML, a key twice, a rule broken, or
-        parameters that measure nothing on the test render): the last good parameters
-        stay, one log line names the problem, a STATUSTEXT says so and :attr:`rejected`
-        holds the reason. Returns True when a new stage was swapped in.
+        The file is read once it is complete (:func:`~uav_depth.daemon.reload.wait_until_complete`),
+        and only when it changed since it was last judged (a SIGHUP and the watch both
+        seeing one change judge it once). Invalid file (unreadable, not UTF-8, not YAML,
+        anchors or aliases, over the size cap, a key twice, a rule broken, parameters that
+        crash or hang OpenCV in the trial child or measure nothing on the test render): the
+        last good parameters stay, one log line names the problem, a STATUSTEXT says so and
+        :attr:`rejected` holds the reason. Returns True when a new stage was swapped in.
         """
         path = Path(path) if path is not None else self.params_file
         if path is None or self.stage is None:
@@ -203,7 +245,13 @@ class StageHolder:
                 return False
             if not path.exists():
                 log.warning("parameter file %s removed; keeping parameters %s", path, current.hash)
+                self._judged = None
                 return False
+            seen = _identity(path)
+            if seen == self._judged:
+                log.debug("parameter file %s unchanged since it was judged", path)
+                return False
+            self._judged = seen
             try:
                 params = load_params(path)
                 if params == current.params:
@@ -221,7 +269,18 @@ class StageHolder:
             return True
 
     def _reject(self, current: Stage, why: str) -> bool:
+        if self.stop.is_set():      # shutting down: the trial child was ended under the trial
+            return False
         self.rejected = why
         log.error("parameters rejected, keeping %s: %s", current.hash, why)
         self.statustext(f"uav-depth: params rejected, kept {current.hash[:8]}", "warning")
         return False
+
+
+def _identity(path: Path) -> tuple[int, ...] | None:
+    """The file's identity for "judged already": inode, size, mtime and ctime (a chmod changes only ctime)."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return (st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)

@@ -25,6 +25,11 @@ class NicedWorker:
         self._thread.start()
         return self
 
+    @property
+    def alive(self) -> bool:
+        """The thread runs (it ends only when the stop event is set, or by dying)."""
+        return self._thread is not None and self._thread.is_alive()
+
     def join(self, timeout_s: float) -> bool:
         """True when the thread is gone (or never started) within ``timeout_s``."""
         if self._thread is None:

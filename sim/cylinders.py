@@ -1,14 +1,15 @@
 """Ray casting of the scene's solid cylinders (trunk, branches, twigs) into one view, all at once.
 
-Cast one by one, each cylinder cost about sixty numpy calls per view, most of them on a few
-thousand pixels: the calls, not the arithmetic, were most of a SITL frame's render. Here the
-culling, the hit test and the surface (texture, shading) run once over every (cylinder,
+Cast one by one, each cylinder costs about sixty numpy calls per view, most of them on a few
+thousand pixels: the calls, not the arithmetic, would be most of a SITL frame's render. Here
+the culling, the hit test and the surface (texture, shading) run once over every (cylinder,
 candidate pixel) pair of a view, with each cylinder's constants spread over its pairs.
 
-The result is the one-by-one cast's bit for bit (tests/sim/test_scene.py compares them):
+The result is bit for bit what casting each cylinder alone, in turn, gives (tests/sim/test_scene.py
+compares them):
 
-- the per-pair arithmetic is the same IEEE operations on the same dtypes (a float32
-  constant per pair where the one-by-one cast had a float32 scalar, float64 where float64);
+- a pair's arithmetic does not depend on the other pairs: the same IEEE operations on the same
+  dtypes (each cylinder's float32 constants spread over its pairs, float64 where float64);
 - cylinders are cast in scene order and a later one takes a pixel only when strictly nearer,
   so the nearest wins and, on a tie, the first (the depth test is the only step done per cylinder);
 - the surface is computed for the pixels each cylinder finally owns; texture samples are
@@ -151,8 +152,32 @@ def cast_cylinders(group: CylinderGroup, o: np.ndarray, rot: np.ndarray, dirs, f
     k, pix = candidates(group, o, rot, focal_px, principal_point, h, w, cull)
     if not pix.size:
         return
-    dx, dy, dz = (a.ravel()[pix] for a in dirs)
+    d = tuple(a.ravel()[pix] for a in dirs)
     depth_flat = depth.ravel()
+    t, s, hits = hit_test(group, o, k, d, depth_flat[pix])
+    if not hits.size:
+        return
+    owner = nearest(len(group), k, pix, t, hits, depth_flat)
+    flat = np.flatnonzero(owner >= 0)
+    sel = owner[flat]
+    hit = (o[0] + t[sel] * d[0][sel], o[1] + t[sel] * d[1][sel], o[2] + t[sel] * d[2][sel])
+    kk = k[sel]
+    bark = Bark(bark_scale, bark_cos, bark_sin, sample)
+    labels.ravel()[flat] = group.kind.take(kk)
+    objects.ravel()[flat] = group.objects.take(kk)
+    intensity.ravel()[flat] = surface(group, kk, hit, s[sel], light, bark)
+
+
+def hit_test(group: CylinderGroup, o: np.ndarray, k: np.ndarray, d: tuple[np.ndarray, np.ndarray, np.ndarray],
+             depth_at: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ray-cylinder test over every (cylinder ``k``, pixel) pair: ``(t, s, hits)``.
+
+    ``d``: the pairs' ray directions (float32); ``depth_at``: the depth already at their
+    pixels. ``t``: the distance along the ray to the surface, ``s``: the hit's position along
+    the axis from ``p0``, m; ``hits``: the pairs that hit in front of the camera, within the
+    cylinder's length and nearer than what is there.
+    """
+    dx, dy, dz = d
     # Per cylinder (float64, as the one-by-one cast): where the ray starts relative to the axis.
     n = len(group)
     wa = np.empty(n, np.float32)
@@ -178,11 +203,17 @@ def cast_cylinders(group: CylinderGroup, o: np.ndarray, rot: np.ndarray, dirs, f
     with np.errstate(invalid="ignore", divide="ignore"):
         t = (-qb - np.sqrt(np.where(ok, disc, 0))) / (2.0 * qa)
     s = spread(wa) + t * da
-    ok &= (t > 0) & (s >= 0) & (s <= spread(group.length32)) & (t < depth_flat[pix])
-    hits = np.flatnonzero(ok)
-    if not hits.size:
-        return
-    # The depth test, cylinder by cylinder in order: a later one wins a pixel only when strictly nearer.
+    ok &= (t > 0) & (s >= 0) & (s <= spread(group.length32)) & (t < depth_at)
+    return t, s, np.flatnonzero(ok)
+
+
+def nearest(n: int, k: np.ndarray, pix: np.ndarray, t: np.ndarray, hits: np.ndarray,
+            depth_flat: np.ndarray) -> np.ndarray:
+    """The depth test, cylinder by cylinder in order: a later one wins a pixel only when strictly nearer.
+
+    Writes the winners' ``t`` into ``depth_flat`` and returns, per pixel, the pair that owns
+    it (-1: none of these cylinders).
+    """
     owner = np.full(depth_flat.size, -1, np.int64)
     bounds = np.searchsorted(k[hits], np.arange(n + 1))
     for i in range(n):
@@ -192,33 +223,41 @@ def cast_cylinders(group: CylinderGroup, o: np.ndarray, rot: np.ndarray, dirs, f
         e = e[t[e] < depth_flat[pix[e]]]
         depth_flat[pix[e]] = t[e]
         owner[pix[e]] = e
-    flat = np.flatnonzero(owner >= 0)
-    sel = owner[flat]
-    kk = k[sel]
-    tt = t[sel]
+    return owner
+
+
+@dataclass(frozen=True)
+class Bark:
+    """How bark is laid on a cylinder: texture px per m, the grain's angle (cos, sin), and the sampler."""
+
+    scale: float
+    cos: float
+    sin: float
+    sample: Sampler
+
+
+def surface(group: CylinderGroup, kk: np.ndarray, hit: tuple[np.ndarray, np.ndarray, np.ndarray], ss: np.ndarray,
+            light: np.ndarray, bark: Bark) -> np.ndarray:
+    """The intensity (float32) of the hits on cylinders ``kk`` at world points ``hit``, ``ss`` along their axes:
+    albedo, bark texture and shading toward ``light``."""
     pick = lambda v: v.take(kk)  # noqa: E731
     p0x, p0y, p0z = (pick(c) for c in group.p0.T)
     ax0, ax1, ax2 = (pick(c) for c in group.axis.T)
-    hx = o[0] + tt * dx[sel] - p0x
-    hy = o[1] + tt * dy[sel] - p0y
-    hz = o[2] + tt * dz[sel] - p0z
-    ss = s[sel]
+    hx, hy, hz = hit[0] - p0x, hit[1] - p0y, hit[2] - p0z
     nx, ny, nz = hx - ss * ax0, hy - ss * ax1, hz - ss * ax2    # radial vector, length r
     (e10, e11, e12), (e20, e21, e22) = (pick(c) for c in group.e1.T), (pick(c) for c in group.e2.T)
     radius = pick(group.radius)
     ang = np.arctan2(nx * e20 + ny * e21 + nz * e22, nx * e10 + ny * e11 + nz * e12)
     # Bark grain spirals at an irrational angle, so the tile does not repeat along the
-    # branch: laid straight it came back every 0.25 m, inside SGBM's search range for a
-    # branch at 1.7 m, and SGBM matched the wrong repeat (a false branch at 0.32 m).
+    # branch: laid straight it would come back every 0.25 m, inside SGBM's search range for
+    # a branch at 1.7 m, where SGBM matches the wrong repeat (a false branch at 0.32 m).
     au, av = ang * radius, ss
-    tu = ((au * bark_cos - av * bark_sin) * bark_scale).astype(np.float32)
-    tv = ((au * bark_sin + av * bark_cos) * bark_scale).astype(np.float32)
-    tex = np.empty(sel.size, np.float32)
+    tu = ((au * bark.cos - av * bark.sin) * bark.scale).astype(np.float32)
+    tv = ((au * bark.sin + av * bark.cos) * bark.scale).astype(np.float32)
+    tex = np.empty(kk.size, np.float32)
     texture = pick(group.texture)
     for tid in np.unique(texture):
         m = texture == tid
-        tex[m] = sample(int(tid), tu[m], tv[m])
+        tex[m] = bark.sample(int(tid), tu[m], tv[m])
     shade = 0.35 + 0.65 * np.clip((nx * light[0] + ny * light[1] + nz * light[2]) / radius, 0, 1)
-    labels.ravel()[flat] = pick(group.kind)
-    objects.ravel()[flat] = pick(group.objects)
-    intensity.ravel()[flat] = (pick(group.albedo32) * (0.45 + 0.55 * tex) * shade).astype(np.float32)
+    return (pick(group.albedo32) * (0.45 + 0.55 * tex) * shade).astype(np.float32)

@@ -14,7 +14,7 @@ is how SITL flies the virtual camera toward the tree.
 Both views are ray-cast analytically, so the left disparity d = f*B/Z is exact
 and the distance to the nearest branch surface is known to pixel sampling.
 
-Optional, all off by default (the default scene is pixel for pixel what it was):
+Optional, all off by default (so figures measured on the default scene stay reproducible):
 foliage in front of the target (twigs, needle fascicles, small branches:
 :mod:`uav_depth.sim.foliage`), bright sky seen through gaps in the canopy, hard
 shadows from the sun (:class:`uav_depth.sim.geometry.ShadowMap`), and the camera
@@ -173,9 +173,9 @@ class Scene:
         px = origin[0] + tb * dx
         py = origin[1] + tb * dy
         # The foliage tile is laid at an angle whose tangent is the golden ratio's
-        # fractional part, so no image row repeats it: a tile laid square repeated
-        # every 3 m, inside SGBM's search range for far backgrounds, and SGBM
-        # matched the wrong repeat with full confidence.
+        # fractional part, so no image row repeats it: a tile laid square would repeat
+        # every 3 m, inside SGBM's search range for far backgrounds, and SGBM would
+        # match the wrong repeat with full confidence.
         scale = _TEX_SIZE / _TEX_M[False] * c.texture_scale
         ru, rv = (px * _BG_COS - py * _BG_SIN) * scale, (px * _BG_SIN + py * _BG_COS) * scale
         tex = self._sample(2, ru, rv)
@@ -299,7 +299,7 @@ def write_session(outdir, frames: int, seed: int, base: SceneConfig | None = Non
         writer.write(i, frame.left, frame.right, reference=frame.disparity, meta=meta,
                      reference_source={"kind": "synthetic", "exact": True,
                                        "note": "ray-cast ground truth from uav_depth.sim.scene"})
-        # The branch mask helps branch-aware fitness later.
+        # Which pixels are branch surface, beside the frame (the tuner loads it as FrameData.branch_mask).
         np.save(writer.session.frames_dir / f"{i:06d}_branch.npy", frame.branch_mask)
         if progress is not None:
             progress(i + 1, frames)

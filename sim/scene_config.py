@@ -2,8 +2,8 @@
 
 Distances in metres, angles in degrees, intensities on the 0..255 scale. Same
 config, same pixels. The keys after ``seed`` (foliage, sky, shadows, the eyes'
-differences) are off by default, so the default scene is what it always was;
-docs/scenes.md says what each adds and why.
+differences) are off by default, so figures measured on the default scene stay
+reproducible; docs/scenes.md says what each adds and why.
 """
 
 from __future__ import annotations
@@ -17,6 +17,9 @@ from uav_depth.core.calibration import Calibration
 from uav_depth.core.errors import ConfigError
 from uav_depth.core.roi import center_roi
 from uav_depth.sim.texture import BG_REPEAT_TILES, TEX_M
+
+#: The largest image side a synthetic scene renders, px.
+MAX_SIDE_PX = 4096
 
 
 @dataclass(frozen=True)
@@ -62,8 +65,10 @@ class SceneConfig:
 
     def __post_init__(self) -> None:
         rules = [
-            ("width", self.width >= 32, "must be at least 32"),
-            ("height", self.height >= 32, "must be at least 32"),
+            # 4096 px each way (a 4K sensor): the renderer holds several float copies of the frame, so a
+            # 100000 x 100000 scene would exhaust memory instead of being refused
+            ("width", 32 <= self.width <= MAX_SIDE_PX, f"must be between 32 and {MAX_SIDE_PX}"),
+            ("height", 32 <= self.height <= MAX_SIDE_PX, f"must be between 32 and {MAX_SIDE_PX}"),
             ("focal_px", self.focal_px > 0, "must be greater than 0"),
             ("baseline_m", self.baseline_m > 0, "must be greater than 0"),
             ("branch_distance_m", 0.05 <= self.branch_distance_m < self.background_distance_m - 0.5,
@@ -141,7 +146,12 @@ class SceneConfig:
                         raise ConfigError(f"{prefix}.{key}", "must be an integer", value)
                     value = int(value)
             kw[key] = value
-        return cls(**kw)
+        try:
+            return cls(**kw)
+        except ConfigError as exc:      # the rules name scene.KEY: say where in this config it is
+            if prefix == "scene" or not exc.key.startswith("scene."):
+                raise
+            raise ConfigError(f"{prefix}.{exc.key[len('scene.'):]}", exc.rule, exc.value) from None
 
     def to_dict(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in fields(self)}

@@ -49,7 +49,7 @@ from uav_depth.core.disparity.window import context_px, window
 from uav_depth.core.errors import ConfigError, SourceError
 from uav_depth.core.params import StereoParams
 from uav_depth.sim.scene import Pose, Scene, SceneConfig, StereoFrame
-from uav_depth.daemon.sources.base import Frame
+from uav_depth.core.frames import Frame
 
 PoseProvider = Callable[[float], Pose]
 

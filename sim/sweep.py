@@ -3,10 +3,10 @@ distance, in three scene variants. ``bench/near_sweep.py`` measures both paramet
 ``uav-depth tune`` checks candidates on one (:data:`SWEEPS`, its safety sweep) at the rig of the log it tuned
 on.
 
-Variants: ``plain`` (issue 11's reproduction: a 3 cm branch), ``varied`` (:func:`~uav_depth.sim.scene.vary`:
-imaging conditions and geometry drawn per seed) and ``leafy`` (``SceneConfig.leafy``: twigs, needles and a small
-branch in front, sky, shadows, the eyes' differences). The truth of a frame is the nearest significant object
-in its centre region (:mod:`uav_depth.sim.truth`).
+Variants: ``plain`` (a lone 3 cm branch: inside the minimum range it must read too close, never farther),
+``varied`` (:func:`~uav_depth.sim.scene.vary`: imaging conditions and geometry drawn per seed) and ``leafy``
+(``SceneConfig.leafy``: twigs, needles and a small branch in front, sky, shadows, the eyes' differences). The
+truth of a frame is the nearest significant object in its centre region (:mod:`uav_depth.sim.truth`).
 """
 
 from __future__ import annotations
@@ -30,8 +30,8 @@ QUICK_SEEDS = (0, 1)
 #: The safety sweep ``uav-depth tune`` checks candidates on by default: the quick sweep's distances inside and
 #: across the minimum range, then every 20 cm from 0.4 to 3 m (where twigs in front are read farther), five seeds
 #: the benchmarks do not use (bench/near_sweep.py: 0-9), so the near sweep stays a check the tuner never saw.
-#: 330 frames: on the quick sweep's 84, a candidate that read 104 leafy frames of the 1 cm near sweep farther
-#: (the flight file 60) read as many as the flight file, and the tuner wrote it (docs/tuning.md).
+#: 330 frames, because the quick sweep's 84 are too few to tell a candidate that reads far more leafy frames
+#: farther than the flight file (104 against 60 on the 1 cm near sweep) from the flight file (docs/tuning.md).
 SAFETY_DISTANCES = QUICK_DISTANCES[:8] + tuple(round(0.4 + 0.2 * i, 2) for i in range(14))
 SAFETY_SEEDS = (10, 11, 12, 13, 14)
 

@@ -6,7 +6,7 @@ import socket
 import threading
 import time
 
-from uav_depth.daemon.mavlink_enums import mavutil
+from uav_depth.daemon.link.vocabulary import mavutil
 
 
 def free_port(kind: int = socket.SOCK_DGRAM) -> int:

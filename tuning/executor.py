@@ -25,7 +25,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import Callable, Iterator, Mapping, Protocol, Sequence
 
 from uav_depth.core.errors import ConfigError, DependencyError
-from uav_depth.daemon.ranging import RangingConfig
+from uav_depth.core.ranging import RangingConfig
 
 from uav_depth.tuning.frames import FrameSet
 from uav_depth.tuning.objective import FLOWN_RANGING, Evaluation, Objective, Task

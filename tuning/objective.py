@@ -36,7 +36,7 @@ from uav_depth.core.disparity import DisparityPipeline, DisparityResult, flight_
 from uav_depth.core.errors import ParameterWarning
 from uav_depth.core.calibration import Calibration
 from uav_depth.core.params import StereoParams, params_from_dict
-from uav_depth.daemon.ranging import Measurement, Ranger, RangingConfig, resolve_roi
+from uav_depth.core.ranging import Measurement, Ranger, RangingConfig, resolve_roi
 
 from uav_depth.tuning import metrics
 from uav_depth.tuning.frames import FrameData, FrameSet

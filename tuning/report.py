@@ -25,7 +25,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import yaml
 
-from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.core.disparity import MEASURED, DisparityPipeline
 from uav_depth.core.params import StereoParams
 from uav_depth.core.session import colourise
 
@@ -223,7 +223,7 @@ def side_by_side(path: Path, frame, base: StereoParams, tuned: StereoParams) -> 
     """reference | base | tuned disparity (one colour scale) as one PNG: the map the daemon ranges on."""
     import cv2
 
-    maps = [flown_map(DisparityPipeline(p, refine=False).run(frame.left, frame.right)) for p in (base, tuned)]
+    maps = [flown_map(DisparityPipeline(p, MEASURED).run(frame.left, frame.right)) for p in (base, tuned)]
     if frame.reference is not None:
         maps.insert(0, frame.reference)
     finite = [m[np.isfinite(m)] for m in maps]

@@ -25,7 +25,7 @@ from typing import Any, Mapping, Protocol, Sequence
 import numpy as np
 
 from uav_depth.core.errors import ConfigError
-from uav_depth.core.params import (ABOVE, CAPPED_WHEN, OPENCV_COST_MAX, OPENCV_PRE_FILTER_CAP_FLOOR, SPEC_BY_KEY,
+from uav_depth.core.params import (ABOVE, CAPPED_WHEN, SUM_AT_LEAST, OPENCV_COST_MAX, OPENCV_PRE_FILTER_CAP_FLOOR, SPEC_BY_KEY,
                                      SPECS, StereoParams, accepted_range)
 
 
@@ -102,7 +102,7 @@ def search_range(key: str, values: Mapping[str, Any]) -> tuple[float, float]:
 
 def depends_on(key: str) -> tuple[str, ...]:
     """The keys whose value narrows ``key``'s range (core.params.ABOVE, CAPPED_WHEN): decoded before it."""
-    return tuple(o for k, o, *_ in ABOVE if k == key) + tuple(o for k, o, *_ in CAPPED_WHEN if k == key)
+    return tuple(o for rules in (ABOVE, SUM_AT_LEAST, CAPPED_WHEN) for k, o, *_ in rules if k == key)
 
 
 def flat(params: StereoParams) -> dict[str, Any]:

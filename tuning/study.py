@@ -29,7 +29,7 @@ import numpy as np
 
 from uav_depth.core.errors import ConfigError, UavDepthError
 from uav_depth.core.params import StereoParams, params_from_dict
-from uav_depth.daemon.ranging import RangingConfig
+from uav_depth.core.ranging import RangingConfig
 
 from uav_depth.tuning.executor import Executor
 from uav_depth.tuning.frames import FrameSet

@@ -19,7 +19,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 from uav_depth.core.errors import ConfigError, UavDepthError
 from uav_depth.core.params import StereoParams, params_from_dict
-from uav_depth.daemon.ranging import RangingConfig
+from uav_depth.core.ranging import RangingConfig
 
 from uav_depth.tuning.choice import SELECT_POOL, Selection, full_scores, select, top_candidates
 from uav_depth.tuning.executor import Executor, make_executor

@@ -6,7 +6,7 @@ import argparse
 
 
 def configure(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--params", help="parameter file to time as 'flight' (default: the built-in flight settings, "
+    p.add_argument("--params", help="parameter file to time as 'flight' (default: the shipped flight settings, "
                                     "as deploy/params-flight.yaml)")
     p.add_argument("--frames", type=int, default=12, help="synthetic pairs, branch 0.5..2 m (default 12)")
     p.add_argument("--rounds", type=int, default=20, help="passes over the frames for the fast pipelines (default 20)")
@@ -24,10 +24,11 @@ def configure(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import json
 
-    from uav_depth.cli.benchmark import bench, flight_params, format_report
+    from uav_depth.cli.benchmark import bench, format_report
     from uav_depth.cli.progress import QUIET, Progress
     from uav_depth.core.errors import ConfigError
     from uav_depth.core.params import load_params
+    from uav_depth.core.params.flight import flight_params
 
     for name in ("frames", "rounds", "naive_rounds"):
         if getattr(args, name) < 1:

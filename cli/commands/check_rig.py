@@ -12,8 +12,7 @@ from __future__ import annotations
 
 import argparse
 
-EXIT_MISALIGNED = 3
-EXIT_CANNOT_TELL = 4
+from uav_depth.cli.exit_codes import EXIT_CANNOT_TELL, EXIT_MISALIGNED
 
 
 def configure(p: argparse.ArgumentParser) -> None:

@@ -19,7 +19,7 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from uav_depth.cli.benchmark import flight_params
+    from uav_depth.core.params.flight import flight_params
     from uav_depth.cli.progress import progress_line
     from uav_depth.core.session import iter_frames, prepare_output
     from uav_depth.sim.scene import SceneConfig, write_session

@@ -1,4 +1,9 @@
-"""uav-depth disparity LEFT RIGHT --out FILE."""
+"""uav-depth disparity LEFT RIGHT --out FILE.
+
+A pair the parameters cannot match (narrower than the disparity search plus the block) is
+refused with the rule it breaks and exit 78, as the daemon refuses such parameters at load,
+instead of an all-invalid map that says nothing of why.
+"""
 
 from __future__ import annotations
 
@@ -20,7 +25,7 @@ def run(args: argparse.Namespace) -> int:
 
     from uav_depth.core.disparity import DisparityPipeline
     from uav_depth.core.errors import FileFormatError
-    from uav_depth.core.params import DEFAULT_PARAMS, load_params
+    from uav_depth.core.params import DEFAULT_PARAMS, check_image_size, load_params
     from uav_depth.core.session import write_disparity
 
     params = load_params(args.params) if args.params else DEFAULT_PARAMS
@@ -30,6 +35,9 @@ def run(args: argparse.Namespace) -> int:
         if img is None:
             raise FileFormatError(f"{path}: missing or not a readable image")
         imgs.append(img)
+    height, width = imgs[0].shape[:2]
+    check_image_size(params, width, height, f"{args.params or 'built-in manual baseline'} on {args.left} "
+                                            f"({width}x{height} px)")
     t0 = time.perf_counter()
     disp = DisparityPipeline(params).compute(*imgs)
     ms = (time.perf_counter() - t0) * 1000

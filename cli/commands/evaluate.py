@@ -38,12 +38,9 @@ def parse_roi(text: str | None):
 
 def run(args: argparse.Namespace) -> int:
     import json
-    import math
-
-    import numpy as np
 
     from uav_depth.cli.progress import Progress
-    from uav_depth.core.errors import FileFormatError, UavDepthError
+    from uav_depth.core.errors import FileFormatError
     from uav_depth.core.params import DEFAULT_PARAMS, load_params
     from uav_depth.core.session import iter_frames
 
@@ -55,53 +52,87 @@ def run(args: argparse.Namespace) -> int:
         raise FileFormatError(f"{args.logdir}: no frame with a reference disparity (*_ref.npy/.pfm/.png)")
     progress = Progress()
     progress.phase(f"loading {len(records)} frame(s) from {args.logdir}")
-    from uav_depth.tuning.frames import FrameSet, load_frame     # after the first line: seconds of imports
-    from uav_depth.tuning.metrics import METRIC_NAMES
-    from uav_depth.tuning.objective import FITNESS, evaluate
+    from uav_depth.tuning.metrics import METRIC_NAMES              # after the first line: seconds of imports
     from uav_depth.tuning.reference.provenance import summarize_references
-    from uav_depth.tuning.report import sources_text
 
-    frames = []
-    for r in records:
-        frames.append(load_frame(r))
-        progress.step("frames loaded", len(frames), len(records))
-    # One frame at a time (the pipeline keeps nothing between frames), so that a terminal sees each scored.
-    progress.phase(f"scoring parameters {params.hash()} on {len(frames)} frame(s)")
-    fitness = FITNESS["flown" if args.convention == "bench" else "mse"]
-    frame_metrics = []
-    for frame in frames:
-        ev = evaluate(params, FrameSet("evaluate", (frame,)), fitness, full=True, convention=args.convention,
-                      score_roi=roi)
-        if not ev.ok:
-            raise UavDepthError(f"{args.logdir}: these parameters cannot be scored: {ev.reason}")
-        frame_metrics.extend(ev.frame_metrics)
-        progress.step("frames scored", len(frame_metrics), len(frames))
+    frame_metrics = score(params, records, args.convention, roi, args.logdir, progress)
     names = list(METRIC_NAMES[args.convention])
     if roi is not None:
         region = f"--roi {list(roi)}"
     else:
         region = "whole frame" if params.compute.whole_frame else f"compute.roi {list(params.compute.roi)}"
     references = summarize_references(records)
-    clean = lambda v: None if isinstance(v, float) and not math.isfinite(v) else v  # noqa: E731
+    per, mean = tabulate(frame_metrics, names)
+    if args.json:
+        doc = {"params_hash": params.hash(), "scored": region, "convention": args.convention,
+               "references": references, "frames": [{k: _finite(v) for k, v in r.items()} for r in per],
+               "mean": {k: _finite(v) for k, v in mean.items()}}
+        print(json.dumps(doc, default=str))
+        return 0
+    print_table(per, mean, names, region, args.convention, references)
+    return 0
+
+
+def score(params, records, convention: str, roi, logdir: str, progress) -> list[dict]:
+    """The metrics of every frame of ``records`` under ``params``, loaded and scored one frame at a time
+    (the pipeline keeps nothing between frames), so that a terminal sees each scored."""
+    from uav_depth.core.errors import UavDepthError
+    from uav_depth.tuning.frames import FrameSet, load_frame
+    from uav_depth.tuning.objective import FITNESS, evaluate
+
+    frames = []
+    for r in records:
+        frames.append(load_frame(r))
+        progress.step("frames loaded", len(frames), len(records))
+    progress.phase(f"scoring parameters {params.hash()} on {len(frames)} frame(s)")
+    fitness = FITNESS["flown" if convention == "bench" else "mse"]
+    frame_metrics = []
+    for frame in frames:
+        ev = evaluate(params, FrameSet("evaluate", (frame,)), fitness, full=True, convention=convention,
+                      score_roi=roi)
+        if not ev.ok:
+            raise UavDepthError(f"{logdir}: these parameters cannot be scored: {ev.reason}")
+        frame_metrics.extend(ev.frame_metrics)
+        progress.step("frames scored", len(frame_metrics), len(frames))
+    return frame_metrics
+
+
+def _finite(v):
+    """A non-finite float as None (JSON has no NaN); anything else as it is."""
+    import math
+
+    return None if isinstance(v, float) and not math.isfinite(v) else v
+
+
+def tabulate(frame_metrics: list[dict], names: list[str]) -> tuple[list[dict], dict]:
+    """One row per frame (the metrics, ms, the branch's truth, reading and error in %) and their means;
+    the branch error's mean and median over the frames that have one."""
+    import math
+
+    import numpy as np
+
     per = []
     for f in frame_metrics:
         row = {k: f[k] for k in ("id", *names, "ms")}
-        row.update(truth_m=f.get("truth_m"), branch_m=clean(f.get("branch_m")),
+        row.update(truth_m=f.get("truth_m"), branch_m=_finite(f.get("branch_m")),
                    branch_err_pct=f.get("branch", math.nan))
         per.append(row)
     errs = [r["branch_err_pct"] for r in per if math.isfinite(r["branch_err_pct"])]
     mean = {k: float(np.mean([r[k] for r in per])) for k in (*names, "ms")} | {
             "branch_err_pct": float(np.mean(errs)) if errs else math.nan,
             "branch_err_median_pct": float(np.median(errs)) if errs else math.nan}
-    if args.json:
-        doc = {"params_hash": params.hash(), "scored": region, "convention": args.convention,
-               "references": references, "frames": [{k: clean(v) for k, v in r.items()} for r in per],
-               "mean": {k: clean(v) for k, v in mean.items()}}
-        print(json.dumps(doc, default=str))
-        return 0
+    return per, mean
+
+
+def print_table(per: list[dict], mean: dict, names: list[str], region: str, convention: str, references) -> None:
+    """The text report: what was scored against what, a row per frame, the means, the branch error."""
+    import math
+
+    from uav_depth.tuning.report import sources_text
+
     against = sources_text({src["description"]: src["frames"] for src in references["sources"]})
-    print(f"scored: {region}, {args.convention} convention; measured against: {against}")
-    truth = bool(errs) or any(r["truth_m"] is not None for r in per)
+    print(f"scored: {region}, {convention} convention; measured against: {against}")
+    truth = math.isfinite(mean["branch_err_pct"]) or any(r["truth_m"] is not None for r in per)
     head = f"{'truth m':>9}{'branch m':>10}{'err%':>7}" if truth else ""
     print(f"{'frame':<28}" + "".join(f"{n:>9}" for n in (*names, "ms")) + head)
     for r in per:
@@ -117,4 +148,3 @@ def run(args: argparse.Namespace) -> int:
     if truth:
         print(f"branch distance: median error {mean['branch_err_median_pct']:.2f}%, mean {mean['branch_err_pct']:.2f}% "
               "(a frame measured nothing counts 100%)")
-    return 0

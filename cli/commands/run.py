@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import argparse
 
+from uav_depth.cli.overrides import CONFIG_EXAMPLE, add_set_option, parse_sets
+
 
 def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", metavar="FILE", help="run config (YAML); default $UAV_DEPTH_CONFIG")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="set a config key (dotted, YAML value), e.g. --set mavlink.rate_hz=25; wins over "
-                        "UAV_DEPTH_* environment variables and the file (repeatable)")
+    add_set_option(p, "the run config", CONFIG_EXAMPLE, "; wins over UAV_DEPTH_* environment variables and the file")
     p.add_argument("--params-file", metavar="FILE", help="same as --set params_file=FILE")
     p.add_argument("--mavlink-url", metavar="URL", help="same as --set mavlink.url=URL")
     p.add_argument("--log-dir", metavar="DIR", help="same as --set logging.dir=DIR")
@@ -29,15 +29,8 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def overrides_from_args(args: argparse.Namespace) -> dict:
-    from uav_depth.daemon.config import parse_value
-    from uav_depth.core.errors import ConfigError
-
-    out: dict = {}
-    for item in args.overrides:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise ConfigError("--set", "must look like KEY=VALUE (mavlink.rate_hz=25)", item)
-        out[key.strip()] = parse_value(value)
+    """The run config's command-line keys: the ``--set`` items, then the options that name one key."""
+    out = parse_sets(args.overrides)
     for key, value in (("params_file", args.params_file), ("mavlink.url", args.mavlink_url),
                        ("logging.dir", args.log_dir)):
         if value is not None:
@@ -56,12 +49,13 @@ def setup_logging(level: str) -> None:
 
 def exit_code(exc) -> int:
     """The exit code (module docstring) for a failure of ``run``, ``run --check`` or ``sitl``: the one mapping."""
-    from uav_depth.cli.main import EXIT_CONFIG, EXIT_ERROR, EXIT_UNAVAILABLE
-    from uav_depth.core.errors import CalibrationError, ConfigError, DependencyError, FileFormatError, SourceError
+    from uav_depth.cli.exit_codes import EXIT_CONFIG, EXIT_ERROR, EXIT_UNAVAILABLE
+    from uav_depth.core.errors import (CalibrationError, ConfigError, DependencyError, FileFormatError, LinkError,
+                                       SourceError)
 
     if isinstance(exc, (ConfigError, CalibrationError, FileFormatError, DependencyError)):
         return EXIT_CONFIG
-    if isinstance(exc, SourceError):
+    if isinstance(exc, (SourceError, LinkError)):
         return EXIT_UNAVAILABLE
     return EXIT_ERROR
 
@@ -131,9 +125,10 @@ def stopped_before_start(signals, command: str, cleanup=None) -> int:
 def log_signals_installed(signals) -> None:
     import logging
 
-    ms = signals.installed_after_ms
+    ms, held = signals.installed_after_ms, signals.held
     logging.getLogger("uav_depth.service").info(
-        "signal handlers installed %s after exec", f"{ms:.0f} ms" if ms is not None else "(time unknown)")
+        "signal handlers installed %s after exec%s", f"{ms:.0f} ms" if ms is not None else "(time unknown)",
+        f" ({', '.join(held)} sent before then: held blocked, handled now)" if held else "")
 
 
 def check(config) -> int:

@@ -74,37 +74,14 @@ def run(args: argparse.Namespace) -> int:
 
     signals = install_once()
 
-    import logging
-    import time
-    from pathlib import Path
-
-    from uav_depth.cli.main import EXIT_CONFIG, EXIT_UNAVAILABLE
-    from uav_depth.cli.sources import SOURCES
-    from uav_depth.daemon.config import load_run_config
+    from uav_depth.cli.exit_codes import EXIT_CONFIG
     from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError
-    from uav_depth.daemon.mavlink_out import MavlinkLink
-    from uav_depth.daemon.service import Service
-    from uav_depth.sim.sitl import MSG_ATTITUDE, MSG_LOCAL_POSITION_NED, PoseRecorder, PoseTracker, \
-        ScriptedPose, SitlConfig, TruthLog, is_autopilot_heartbeat
+    from uav_depth.daemon.link.endpoint import MavlinkLink
 
     run_command.setup_logging(args.log_level)
-    log = logging.getLogger("uav_depth.sitl")
     err = run_command.error_line("sitl")
     try:
-        config = load_run_config(args.config, run_command.overrides_from_args(args), sources=SOURCES)
-        if config.source_kind != "synthetic":
-            raise ConfigError("source.kind", "must be synthetic for uav-depth sitl (frames are rendered from the "
-                              "vehicle's pose)", config.source_kind, str(args.config) if args.config else None)
-        sitl = SitlConfig(tree_ned_m=tuple(args.tree_ned) if args.tree_ned else None,
-                          approach_yaw_deg=args.approach_yaw_deg, camera_offset_m=tuple(args.camera_offset),
-                          camera_pitch_deg=args.camera_pitch_deg, pose_rate_hz=args.pose_rate_hz,
-                          pose_timeout_s=args.pose_timeout_s, predict_max_s=args.pose_predict_max_s)
-        if not 0 <= args.wait_s <= 3600:
-            raise ConfigError("--wait-s", "must be between 0 (no limit) and 3600", args.wait_s)
-        if not 0 <= args.listen_s <= 60:
-            raise ConfigError("--listen-s", "must be between 0 and 60", args.listen_s)
-        if args.force_scripted and not args.scripted:
-            raise ConfigError("--force-scripted", "only goes with --scripted", True)
+        config, sitl = load_config(args)
     except (ConfigError, CalibrationError, FileFormatError) as exc:
         err(exc)
         return EXIT_CONFIG
@@ -112,9 +89,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"config valid: {config.summary()}; {sitl.describe(config.source.scene.branch_distance_m)}"
               + ("; scripted approach" if args.scripted else ""))
         return 0
-
-    stop = signals.stop
-    if stop.is_set():
+    if signals.stop.is_set():
         return run_command.stopped_before_start(signals, "sitl")
     svc = config.service
     try:
@@ -122,64 +97,134 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         err(exc)
         return EXIT_CONFIG
-    tracker = PoseTracker(sitl, config.source.scene.branch_distance_m)
-    recorder = None
     refused: list[str] = []
-    if args.scripted:
-        def autopilot_heard(msg) -> None:   # on the link's thread: only note it and stop
-            if is_autopilot_heartbeat(msg) and not args.force_scripted and not refused:
-                refused.append(f"system {msg.get_srcSystem()} component {msg.get_srcComponent()} "
-                               f"on {config.mavlink.url}")
-                stop.set()
-        link.subscribe("HEARTBEAT", autopilot_heard)
-        link.start()
-        log.info("scripted approach: listening %.1f s for an autopilot's HEARTBEAT on %s first", args.listen_s,
-                 config.mavlink.url)
-        deadline = time.monotonic() + args.listen_s
-        while link.autopilot is None and not refused and not stop.wait(0.05) and time.monotonic() < deadline:
-            pass
-        if refused or (link.autopilot is not None and not args.force_scripted):
+    wait = listen_for_autopilot if args.scripted else wait_for_pose
+    pose_provider, tracker, code = wait(args, config, sitl, link, signals.stop, err, refused)
+    if code is not None:
+        return code
+    return fly(args, config, link, pose_provider, tracker, signals, err, refused)
+
+
+def load_config(args: argparse.Namespace):
+    """(RunConfig, SitlConfig) from the arguments; ConfigError naming what is wrong."""
+    from uav_depth.cli.sources import SOURCES
+    from uav_depth.core.errors import ConfigError
+    from uav_depth.daemon.config import load_run_config
+    from uav_depth.sim.sitl import SitlConfig
+
+    config = load_run_config(args.config, run_command.overrides_from_args(args), sources=SOURCES)
+    if config.source_kind != "synthetic":
+        raise ConfigError("source.kind", "must be synthetic for uav-depth sitl (frames are rendered from the "
+                          "vehicle's pose)", config.source_kind, str(args.config) if args.config else None)
+    sitl = SitlConfig(tree_ned_m=tuple(args.tree_ned) if args.tree_ned else None,
+                      approach_yaw_deg=args.approach_yaw_deg, camera_offset_m=tuple(args.camera_offset),
+                      camera_pitch_deg=args.camera_pitch_deg, pose_rate_hz=args.pose_rate_hz,
+                      pose_timeout_s=args.pose_timeout_s, predict_max_s=args.pose_predict_max_s)
+    if not 0 <= args.wait_s <= 3600:
+        raise ConfigError("--wait-s", "must be between 0 (no limit) and 3600", args.wait_s)
+    if not 0 <= args.listen_s <= 60:
+        raise ConfigError("--listen-s", "must be between 0 and 60", args.listen_s)
+    if args.force_scripted and not args.scripted:
+        raise ConfigError("--force-scripted", "only goes with --scripted", True)
+    return config, sitl
+
+
+def listen_for_autopilot(args, config, sitl, link, stop, err, refused):
+    """--scripted: listen for an autopilot first; (pose provider, None, exit code or None to fly)."""
+    import logging
+    import time
+
+    from uav_depth.cli.exit_codes import EXIT_CONFIG
+    from uav_depth.sim.sitl import ScriptedPose, is_autopilot_heartbeat
+
+    log = logging.getLogger("uav_depth.sitl")
+
+    def autopilot_heard(msg) -> None:   # on the link's thread: only note it and stop
+        if is_autopilot_heartbeat(msg) and not args.force_scripted and not refused:
+            refused.append(f"system {msg.get_srcSystem()} component {msg.get_srcComponent()} "
+                           f"on {config.mavlink.url}")
+            stop.set()
+    link.subscribe("HEARTBEAT", autopilot_heard)
+    link.start()
+    log.info("scripted approach: listening %.1f s for an autopilot's HEARTBEAT on %s first", args.listen_s,
+             config.mavlink.url)
+    deadline = time.monotonic() + args.listen_s
+    beat = heartbeats(link)
+    while link.autopilot is None and not refused and not stop.wait(0.05) and time.monotonic() < deadline:
+        beat()
+    if refused or (link.autopilot is not None and not args.force_scripted):
+        link.close()
+        err(scripted_refusal(refused[0] if refused else "system %d component %d on %s" % (
+            *link.autopilot, config.mavlink.url)))
+        return None, None, EXIT_CONFIG
+    if stop.is_set():
+        link.close()
+        return None, None, 0
+    if link.autopilot is not None:
+        log.warning("--force-scripted: the autopilot (system %d component %d) receives the scripted approach's "
+                    "made-up distances", *link.autopilot)
+    return ScriptedPose(config.source.scripted_pose, lambda: link.autopilot, args.force_scripted), None, None
+
+
+def wait_for_pose(args, config, sitl, link, stop, err, refused):
+    """Ask for the autopilot's pose and wait for it (no distance meanwhile); (pose provider, tracker, exit
+    code or None to fly)."""
+    import logging
+    import time
+
+    from uav_depth.cli.exit_codes import EXIT_UNAVAILABLE
+    from uav_depth.sim.sitl import MSG_ATTITUDE, MSG_LOCAL_POSITION_NED, PoseTracker
+    from uav_depth.sim.truthlog import PoseRecorder
+
+    log = logging.getLogger("uav_depth.sitl")
+    code = check_settings_on_connect(config, link, err)
+    if code is not None:
+        return None, None, code
+    tracker = PoseTracker(sitl, config.source.scene.branch_distance_m)
+    link.subscribe("LOCAL_POSITION_NED", tracker.on_message)
+    link.subscribe("ATTITUDE", tracker.on_message)
+    # Remembered by the link and sent again when the autopilot (re)appears.
+    link.request_message_interval(MSG_LOCAL_POSITION_NED, sitl.pose_rate_hz)
+    link.request_message_interval(MSG_ATTITUDE, sitl.pose_rate_hz)
+    link.start()
+    limit = f"up to {args.wait_s:g} s" if args.wait_s > 0 else "as long as it takes"
+    log.info("waiting %s for the autopilot's LOCAL_POSITION_NED and ATTITUDE on %s; no distance is sent "
+             "before (ArduPilot streams them once its EKF uses GPS)", limit, config.mavlink.url)
+    t0 = time.monotonic()
+    next_note = t0 + 10.0
+    beat = heartbeats(link)
+    while not tracker.ready() and not stop.wait(0.05):
+        beat()
+        now = time.monotonic()
+        if args.wait_s > 0 and now - t0 > args.wait_s:
             link.close()
-            err(scripted_refusal(refused[0] if refused else "system %d component %d on %s" % (
-                *link.autopilot, config.mavlink.url)))
-            return EXIT_CONFIG
-        if stop.is_set():
-            link.close()
-            return 0
-        if link.autopilot is not None:
-            log.warning("--force-scripted: the autopilot (system %d component %d) receives the scripted approach's "
-                        "made-up distances", *link.autopilot)
-        pose_provider = ScriptedPose(config.source.scripted_pose, lambda: link.autopilot, args.force_scripted)
-    else:
-        link.subscribe("LOCAL_POSITION_NED", tracker.on_message)
-        link.subscribe("ATTITUDE", tracker.on_message)
-        # Remembered by the link and sent again when the autopilot (re)appears.
-        link.request_message_interval(MSG_LOCAL_POSITION_NED, sitl.pose_rate_hz)
-        link.request_message_interval(MSG_ATTITUDE, sitl.pose_rate_hz)
-        link.start()
-        limit = f"up to {args.wait_s:g} s" if args.wait_s > 0 else "as long as it takes"
-        log.info("waiting %s for the autopilot's LOCAL_POSITION_NED and ATTITUDE on %s; no distance is sent "
-                 "before (ArduPilot streams them once its EKF uses GPS)", limit, config.mavlink.url)
-        t0 = time.monotonic()
-        next_note = t0 + 10.0
-        while not tracker.ready() and not stop.wait(0.05):
-            now = time.monotonic()
-            if args.wait_s > 0 and now - t0 > args.wait_s:
-                link.close()
-                err(f"no fresh pose (LOCAL_POSITION_NED and ATTITUDE) from an autopilot on {config.mavlink.url} "
-                    f"within --wait-s {args.wait_s:g} s ({tracker.waiting_for(link.autopilot)})")
-                return EXIT_UNAVAILABLE
-            if now >= next_note:
-                log.info("still blind after %.0f s: %s", now - t0, tracker.waiting_for(link.autopilot))
-                next_note = now + 10.0
-        if stop.is_set():
-            link.close()
-            return 0
-        tree = tracker.tree_ned()
-        log.info("autopilot system %d: tree (target branch) at N %.2f E %.2f D %.2f m, approached at heading "
-                 "%.0f deg", tracker.sysid, tree[0], tree[1], tree[2], sitl_heading_deg(tracker))
-        recorder = PoseRecorder(tracker)
-        pose_provider = recorder
+            err(f"no fresh pose (LOCAL_POSITION_NED and ATTITUDE) from an autopilot on {config.mavlink.url} "
+                f"within --wait-s {args.wait_s:g} s ({tracker.waiting_for(link.autopilot)})")
+            return None, tracker, EXIT_UNAVAILABLE
+        if now >= next_note:
+            log.info("still blind after %.0f s: %s", now - t0, tracker.waiting_for(link.autopilot))
+            next_note = now + 10.0
+    if stop.is_set():
+        link.close()
+        return None, tracker, 0
+    tree = tracker.tree_ned()
+    log.info("autopilot system %d: tree (target branch) at N %.2f E %.2f D %.2f m, approached at heading "
+             "%.0f deg", tracker.sysid, tree[0], tree[1], tree[2], sitl_heading_deg(tracker))
+    return PoseRecorder(tracker), tracker, None
+
+
+def fly(args, config, link, pose_provider, tracker, signals, err, refused) -> int:
+    """Run the service on frames rendered from ``pose_provider``, logging the truth beside each frame."""
+    import logging
+    import time
+    from pathlib import Path
+
+    from uav_depth.cli.exit_codes import EXIT_CONFIG
+    from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError
+    from uav_depth.daemon.service import Service
+    from uav_depth.sim.truthlog import TruthLog
+
+    log = logging.getLogger("uav_depth.sitl")
     try:
         service = Service(config, pose_provider=pose_provider, link=link)
     except (ConfigError, CalibrationError, FileFormatError) as exc:
@@ -195,6 +240,7 @@ def run(args: argparse.Namespace) -> int:
             log.info("rendering only what the flight pipeline reads (--render full for every pixel)")
     path = Path(args.truth_log) if args.truth_log else \
         Path(config.logging.dir or ".") / time.strftime("sitl-%Y%m%d-%H%M%S.csv")
+    recorder = pose_provider if tracker is not None else None
     truth = TruthLog(path, service, recorder, tree_ned=tracker.tree_ned() if recorder else None)
     truth.start()
 
@@ -207,6 +253,46 @@ def run(args: argparse.Namespace) -> int:
         err(scripted_refusal(refused[0]))
         return EXIT_CONFIG
     return code
+
+
+def check_settings_on_connect(config, link, err) -> int | None:
+    """Check the autopilot's settings when it is first heard, not when its pose comes (about 40 s later on
+    ArduPilot, when the service and its send clock start): the range from the parameter file as run --check
+    builds it. An exit code when the config cannot fly (as the service would say later), else None."""
+    from uav_depth.cli.commands.run import exit_code
+    from uav_depth.core.errors import UavDepthError
+    from uav_depth.daemon.link.contract import stated_range_cm
+    from uav_depth.daemon.link.settings import WireRange
+    from uav_depth.daemon.link.settings_check import attach
+    from uav_depth.daemon.link.vocabulary import orientation_code
+    from uav_depth.daemon.preflight import preflight
+    from uav_depth.daemon.sources import create_source
+
+    try:
+        limits = preflight(config, create_source(config.source)).limits
+    except UavDepthError as exc:
+        err(exc)
+        return exit_code(exc)
+    rng = WireRange(*stated_range_cm(limits), orientation_code(config.mavlink.orientation))
+    attach(link, lambda: rng)
+    return None
+
+
+def heartbeats(link, state: str = "boot"):
+    """A call for a wait loop that sends the daemon's HEARTBEAT once a second (docs/wire.md promises one a
+    second whatever happens; the send clock, which sends it later, starts only with the service)."""
+    import time
+
+    from uav_depth.daemon.link.vocabulary import HEARTBEAT_PERIOD_S
+
+    due = [0.0]
+
+    def beat() -> None:
+        now = time.monotonic()
+        if now >= due[0]:
+            link.heartbeat(state)
+            due[0] = now + HEARTBEAT_PERIOD_S
+    return beat
 
 
 def full_frame_users(config) -> list[str]:

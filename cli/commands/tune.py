@@ -111,7 +111,7 @@ def ranging_of(args: argparse.Namespace):
     else the daemon's defaults."""
     from uav_depth.cli.sources import SOURCES
     from uav_depth.daemon.config import load_run_config
-    from uav_depth.daemon.ranging import RangingConfig
+    from uav_depth.core.ranging import RangingConfig
 
     path = args.config or os.environ.get("UAV_DEPTH_CONFIG")
     if not path:

@@ -6,7 +6,7 @@ an object at 3 m about 7 matched px of disparity at 1280x720, 2 px at 5 m and
 and its box on that coarse map, then asks this stage to match only the box, at the
 input resolution, over ``compute.fine_disparities`` disparities starting at a
 given ``d0`` (input px) just below the coarse disparity. Ranging decides what the
-fine match may change (``uav_depth.daemon.ranging``: never farther than the coarse
+fine match may change (``uav_depth.core.ranging``: never farther than the coarse
 pass saw unless the fine match is confident).
 
 The search is shifted instead of widened: the right crop is taken ``d0`` columns
@@ -14,38 +14,21 @@ left of the left crop, so SGBM searches 0 .. num - 1 on the shifted pair and the
 true disparity is that plus ``d0``. The crop then needs only ``num`` columns of
 margin on each side (the left search band; the right matcher's unanswered band for
 the left-right check), not ``d0 + num``. What it costs is set by the box ranging
-asks for (``uav_depth.daemon.ranging`` caps it).
+asks for (``uav_depth.core.ranging`` caps it).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
 from uav_depth.core.disparity.confidence import lr_confidence
 from uav_depth.core.disparity.match import build_matchers, match_left, match_right, to_float
+from uav_depth.core.disparity.result import Box, DisparityResult, FineMatch
 from uav_depth.core.disparity.window import context_px
 from uav_depth.core.params import StereoParams
-
-
-
-@dataclass(frozen=True)
-class FineMatch:
-    """The fine pass over one box of the input image.
-
-    ``box``: (x0, y0, x1, y1) input px; ``measured``: (y1 - y0, x1 - x0) float32
-    disparity px (input resolution, the shift added back), NaN where nothing was
-    matched; ``confidence``: the same shape, 0..1 left-right confidence, or None
-    without the right matcher (``wls.enabled: false``); ``d_lo``/``d_hi``: the smallest and largest disparity searched, input px.
-    """
-
-    box: tuple[int, int, int, int]
-    measured: np.ndarray
-    confidence: np.ndarray | None
-    d_lo: float
-    d_hi: float
 
 
 def fine_params(params: StereoParams) -> StereoParams:
@@ -65,7 +48,7 @@ class FineMatcher:
         self.num = params.compute.fine_disparities
         self.matchers = build_matchers(self.params)
 
-    def match(self, left: np.ndarray, right: np.ndarray, box: tuple[int, int, int, int], d0: int) -> FineMatch | None:
+    def match(self, left: np.ndarray, right: np.ndarray, box: Box, d0: int) -> FineMatch | None:
         """Match ``box`` of the rectified pair over disparities ``d0 .. d0 + num - 1`` (input px).
 
         None when the box is too near the image's left edge for the shifted search
@@ -100,3 +83,30 @@ class FineMatcher:
                                                        cols=(ix0 - cx0, x1 - cx0))[inner] * np.float32(1.0 / 255.0),
                                          0.0, 1.0)
         return FineMatch(box, measured, conf, float(d0), float(d0 + self.num - 1))
+
+
+@dataclass(frozen=True)
+class FineOnFrame:
+    """The fine pass offered to ranging for one frame (:class:`.result.FineRematch`): this frame's pair and
+    the fine matcher. Nothing is matched until ranging asks for a box."""
+
+    matcher: FineMatcher
+    left: np.ndarray
+    right: np.ndarray
+
+    def match(self, box: Box, d0: int) -> FineMatch | None:
+        return self.matcher.match(self.left, self.right, box, d0)
+
+
+class FineStage:
+    """The fine pass as a stage of the flight pipeline: adds :class:`FineOnFrame` to a result that matched.
+    Built only where the parameters have a fine pass (:attr:`~uav_depth.core.params.ComputeParams.fine_pass`:
+    at ``compute.scale`` 1 the main match is already full resolution)."""
+
+    def __init__(self, params: StereoParams):
+        self.matcher = FineMatcher(params)
+
+    def run(self, left: np.ndarray, right: np.ndarray, result: DisparityResult) -> DisparityResult:
+        if result.warning:
+            return result
+        return replace(result, fine=FineOnFrame(self.matcher, left, right))

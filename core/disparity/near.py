@@ -3,7 +3,7 @@
 SGBM searches disparities up to ``min_disparity + num_disparities - 1`` (matched
 px). An object nearer than the minimum range this sets has a larger disparity,
 and SGBM then matches it to something else inside the search, i.e. *farther*
-(issue 11: branches at 0.12-0.26 m came back as 0.28-0.49 m). The **near pass**
+(a branch at 0.2 m reads as one at 0.35 m, docs/ranging.md, *Too close*). The **near pass**
 tells such a frame apart: the same SGBM on the region at a coarse scale (16 / d_max,
 at least 0.125) searching every disparity from 0 to at least 44 matched px past the main search's
 largest disparity (about four times it); pixels it matches beyond the main search, left-right
@@ -19,19 +19,21 @@ too close; a blank frame without texture (sky, a bare wall, a covered lens) is
 too close only right after a too-close one (docs/ranging.md), else no
 measurement.
 
-Ranging (``uav_depth.daemon.ranging``) decides "too close" from it.
+Ranging (``uav_depth.core.ranging``) decides "too close" from it.
 """
 
 from __future__ import annotations
 
+import functools
 import math
-from dataclasses import dataclass
-from typing import Callable
 
 import cv2
 import numpy as np
 
-from uav_depth.core.disparity.window import margins
+from uav_depth.core.disparity.matching import MatchStage, upsample
+from uav_depth.core.disparity.prepare import Prepared, check_pair, grey
+from uav_depth.core.disparity.result import DisparityResult, Laps, NearCheck
+from uav_depth.core.disparity.window import Window, margins, window
 from uav_depth.core.params import StereoParams
 
 #: The near pass's scale puts the main search's end near this many matched px (not below NEAR_MIN_SCALE) ...
@@ -42,34 +44,11 @@ NEAR_MIN_SCALE = 0.125
 NEAR_BEYOND = 44
 #: The near pass's match filters, whatever the main parameters say: the values its rules (ranging's too-close
 #: rules 1, 3 and 4) were measured with, those of both shipped files and of OpenCV's sample. The near pass is a
-#: safety check, not a tuned stage: ``uav-depth tune`` searches these keys for the main pass, and a tuned file with
-#: speckle window 2670 / range 6 and uniqueness 0 (a real-pairs tune, 2026-12-05) erased the near pass's matches
-#: and sent branches at 0.27-0.29 m, inside its minimum range of 0.347 m, as 0.50-0.51 m (docs/ranging.md).
+#: safety check, not a tuned stage: ``uav-depth tune`` searches these keys for the main pass, and tuned filters
+#: (speckle window 2670 / range 6, uniqueness 0) erase the near pass's matches and send branches inside the
+#: minimum range as farther distances (docs/ranging.md, *Too close*).
 NEAR_FILTERS = {"sgbm.uniqueness_ratio": 10, "sgbm.disp12_max_diff": 1, "sgbm.pre_filter_cap": 63,
                 "sgbm.speckle_window_size": 100, "sgbm.speckle_range": 32}
-
-
-@dataclass(frozen=True)
-class NearCheck:
-    """The near check of one frame.
-
-    ``disparity``: (H, W) float32 disparity px (input resolution) the near pass
-    measured, NaN where it matched nothing (its left-right check is
-    ``DisparityResult.near_consistent``); ranging looks at the pixels beyond
-    ``max_disparity_px``, the main search's largest disparity, input px.
-    """
-
-    disparity: np.ndarray
-    max_disparity_px: float
-    #: ``textured()``: (H, W) bool, both views textured here at the near pass's scale (:func:`textured`),
-    #: False outside the near pass's region; computed when first asked for (ranging asks only for a frame
-    #: that is otherwise blank). None when not available.
-    textured: Callable[[], np.ndarray] | None = None
-    #: ``confidence()``: (H, W) float32 0..1, the near pass's confidence (layout of
-    #: ``DisparityResult.confidence``), computed when first asked for: ranging asks only when the main pass
-    #: has matched too little of the region (rule 4), and its depth-edge weights are most of the check's
-    #: cost. None without the near pass's right matcher.
-    confidence: Callable[[], np.ndarray] | None = None
 
 
 #: A pixel is textured when its grey gradient (Sobel magnitude, 8-bit grey, at the near pass's coarse scale,
@@ -118,8 +97,8 @@ def near_pad(near: StereoParams, width: int, height: int) -> tuple[int, int]:
 
     SGBM answers a column only when the whole search lies inside the image left of it (and the right matcher
     only when it lies right of it), so the near pass, which searches up to about four times the main search's
-    largest disparity at a coarse scale, answered only part of the region on a frame narrower than about 3.75
-    times that disparity, and nothing on a narrower one (issue 11; docs/ranging.md, *Too close*). Padding the
+    largest disparity at a coarse scale, answers only part of the region on a frame narrower than about 3.75
+    times that disparity, and nothing on a narrower one (docs/ranging.md, *Too close*). Padding the
     views (:func:`pad_views`) lets it search every column; a match whose partner lies in the padding is dropped.
     Rounded up to whole coarse pixels of 1 / scale input px when that is whole."""
     x0, _, x1, _ = near.compute.roi_pixels(width, height)
@@ -138,3 +117,89 @@ def pad_views(left: np.ndarray, right: np.ndarray, pad_l: int, pad_r: int) -> tu
     of the edge, a false "too close" (docs/ranging.md). A match into the mirror is no match (the pipeline's
     near pass drops it)."""
     return tuple(cv2.copyMakeBorder(v, 0, 0, pad_l, pad_r, cv2.BORDER_REFLECT_101) for v in (left, right))
+
+
+class NearStage:
+    """The near check as a stage of the flight pipeline: the near pass (:func:`near_params`) of one frame size,
+    adding :class:`.result.NearCheck` to the main pass's result. Where its search does not fit beside the
+    region (:func:`near_pad`), it matches the rows its window needs, grey, padded by a mirror each side; its
+    maps are put back at the input's rows and columns."""
+
+    def __init__(self, params: StereoParams):
+        self.main_max_disparity_px = max_disparity_px(params)
+        self.params = near_params(params)
+        self._sizes: dict[tuple[int, int], tuple[slice | None, int, int, MatchStage]] = {}
+
+    def run(self, left: np.ndarray, right: np.ndarray, result: DisparityResult) -> DisparityResult:
+        """``result`` with the near check of this pair (``near``) and its time (``timings_ms["near"]``)."""
+        laps = Laps()
+        measured, confidence, consistent, tex = self.maps(left, right)
+        check = NearCheck(measured, self.main_max_disparity_px, tex, confidence, consistent)
+        laps.lap("near")
+        return DisparityResult(result.disparity, result.measured, result.confidence, result.warning,
+                               {**result.timings_ms, **laps.ms}, near=check, fine=result.fine,
+                               lr_consistent=result.lr_consistent)
+
+    def for_size(self, width: int, height: int) -> tuple[slice | None, int, int, MatchStage]:
+        """(rows matched or None for the whole frame, columns padded left and right, the near pass's match stage)
+        for a ``width`` x ``height`` frame (built once per size)."""
+        if (width, height) not in self._sizes:
+            pad_l, pad_r = near_pad(self.params, width, height)
+            if not (pad_l or pad_r):
+                self._sizes[(width, height)] = None, 0, 0, MatchStage(self.params, smooth=False, lazy_confidence=True)
+            else:
+                _, cy0, _, cy1 = window(self.params, width, height).crop
+                x0, y0, x1, y1 = self.params.compute.roi_pixels(width, height)
+                wp, hb = pad_l + width + pad_r, cy1 - cy0
+                params = self.params.replace(**{"compute.roi": ((x0 + pad_l) / wp, (y0 - cy0) / hb,
+                                                                (x1 + pad_l) / wp, (y1 - cy0) / hb)})
+                assert params.compute.roi_pixels(wp, hb) == (x0 + pad_l, y0 - cy0, x1 + pad_l, y1 - cy0)
+                self._sizes[(width, height)] = (slice(cy0, cy1), pad_l, pad_r,
+                                                MatchStage(params, smooth=False, lazy_confidence=True))
+        return self._sizes[(width, height)]
+
+    def maps(self, left: np.ndarray, right: np.ndarray):
+        """(measured, confidence, left-right check, textured), each (H, W) at the input's resolution
+        (:class:`.result.DisparityResult`); confidence and textured are callables computed when first asked
+        for (:class:`.result.NearCheck`), or None."""
+        check_pair(left, right)
+        h, w = left.shape[:2]
+        rows, pad_l, pad_r, stage = self.for_size(w, h)
+        if rows is None:
+            got = stage.run(left, right)
+            win, prep, conf = got.window, got.prepared, got.later_confidence
+            tex = None if win is None or prep is None else functools.partial(_textured_map, win, prep, (h, w))
+            return (got.result.measured, None if conf is None else functools.cache(conf), got.result.lr_consistent,
+                    tex)
+        left, right = pad_views(grey(left[rows]), grey(right[rows]), pad_l, pad_r)
+        got = stage.run(left, right)
+        res, win, prep, later = got.result, got.window, got.prepared, got.later_confidence
+        cols = slice(pad_l, pad_l + w)
+        measured = _at_rows(res.measured[:, cols], rows, h, np.nan)
+        # A match whose partner lies left of the image (in the mirror) is no match: only columns left of the
+        # near search's end can have one.
+        reach = min(w, math.ceil(max_disparity_px(self.params)) + 1)
+        with np.errstate(invalid="ignore"):
+            band = measured[rows, :reach]
+            band[band > np.arange(reach, dtype=np.float32)] = np.nan
+        conf = None if later is None else functools.cache(lambda: _at_rows(later()[:, cols], rows, h, 0.0))
+        lr = None if res.lr_consistent is None else _at_rows(res.lr_consistent[:, cols], rows, h, False)
+        tex = None if win is None or prep is None else (
+            lambda: _at_rows(_textured_map(win, prep, left.shape[:2])[:, cols], rows, h, False))
+        return measured, conf, lr, tex
+
+
+def _at_rows(band: np.ndarray, rows: slice, height: int, fill) -> np.ndarray:
+    """``band`` (the input's ``rows``) placed in a (``height``, W) map filled with ``fill`` elsewhere."""
+    out = np.empty((height, band.shape[1]), band.dtype)
+    out[:rows.start] = fill
+    out[rows] = band
+    out[rows.stop:] = fill
+    return out
+
+
+def _textured_map(win: Window, prep: Prepared, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool: :func:`textured` of a pass's prepared views, at input resolution under its region."""
+    tex = np.zeros(shape, bool)
+    tex[win.outer()] = upsample(win, textured, prep.left_m, prep.right_m, interpolation=cv2.INTER_NEAREST) > 0
+    return tex

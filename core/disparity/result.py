@@ -1,20 +1,74 @@
-"""What one disparity run returns, and the stopwatch that times its stages."""
+"""What one disparity run returns (typed, one dataclass per stage's output), and the stopwatch that times its
+stages."""
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping
+from typing import Callable, Mapping, Protocol
 
 import numpy as np
+
+#: (x0, y0, x1, y1) px of the input image, x1/y1 exclusive.
+Box = tuple[int, int, int, int]
+
+
+@dataclass(frozen=True)
+class NearCheck:
+    """The near check of one frame (:mod:`.near`): is something nearer than the main search can match?
+
+    ``disparity``: (H, W) float32 disparity px (input resolution) the near pass
+    measured, NaN where it matched nothing; ranging looks at the pixels beyond
+    ``max_disparity_px``, the main search's largest disparity, input px.
+    """
+
+    disparity: np.ndarray
+    max_disparity_px: float
+    #: ``textured()``: (H, W) bool, both views textured here at the near pass's scale (:func:`.near.textured`),
+    #: False outside the near pass's region; computed when first asked for (ranging asks only for a frame
+    #: that is otherwise blank). None when not available.
+    textured: Callable[[], np.ndarray] | None = None
+    #: ``confidence()``: (H, W) float32 0..1, the near pass's confidence (layout of
+    #: ``DisparityResult.confidence``), computed when first asked for: ranging asks only when the main pass
+    #: has matched too little of the region (rule 4), and its depth-edge weights are most of the check's
+    #: cost. None without the near pass's right matcher.
+    confidence: Callable[[], np.ndarray] | None = None
+    #: (H, W) bool: the near pass's left-right check alone (layout of ``DisparityResult.lr_consistent``), to
+    #: filter ``disparity`` with; None without its right matcher.
+    consistent: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class FineMatch:
+    """The fine pass over one box of the input image (:mod:`.fine`).
+
+    ``box``: (x0, y0, x1, y1) input px; ``measured``: (y1 - y0, x1 - x0) float32
+    disparity px (input resolution, the shift added back), NaN where nothing was
+    matched; ``confidence``: the same shape, 0..1 left-right confidence, or None
+    without the right matcher (``wls.enabled: false``); ``d_lo``/``d_hi``: the smallest and largest
+    disparity searched, input px.
+    """
+
+    box: Box
+    measured: np.ndarray
+    confidence: np.ndarray | None
+    d_lo: float
+    d_hi: float
+
+
+class FineRematch(Protocol):
+    """The fine pass offered to ranging for one frame: ``match(box, d0)`` re-matches ``box`` (input px) at full
+    resolution over disparities from ``d0`` (input px); None when the box cannot be matched."""
+
+    def match(self, box: Box, d0: int) -> FineMatch | None: ...
 
 
 @dataclass(frozen=True)
 class DisparityResult:
     """Output of one pipeline run; every map is (H, W) at the input's resolution.
 
-    ``disparity``: float32 px, NaN where invalid: the WLS output when the refine
-    stage ran, else the same values as ``measured``. ``measured``: float32 px of the
+    ``disparity``: float32 px, NaN where invalid: the WLS output when the pipeline's
+    steps include WLS, else the same values as ``measured``. ``measured``: float32 px of the
     left matcher alone, after its uniqueness, left-right (disp12_max_diff) and
     speckle checks: the pixels that were really matched, never filled in. This is
     what ranging and the flown objective use. ``confidence``: float32 in 0..1, the
@@ -23,13 +77,9 @@ class DisparityResult:
     off (``wls.enabled: false``). ``warning``: why the maps are empty when the
     parameters cannot be computed. ``timings_ms``: wall time of each stage of this
     run (prepare, match_left, match_right, confidence, wls, assemble, near), ms.
-    ``near``: the near check (:mod:`.near`) when the pipeline was built with
-    ``near=True``, else None (its confidence is ``near.confidence()``, computed when asked for);
-    ``near_consistent``: the near pass's left-right check alone (layout of ``lr_consistent``) to filter
-    ``near.disparity`` with. ``fine``: when the
-    flight pipeline has a fine pass (``compute.fine_disparities``), ``fine(box, d0)`` re-matches
-    ``box`` (x0, y0, x1, y1 input px) of this frame at full resolution over disparities from ``d0``
-    (:class:`.fine.FineMatch`, or None when the box cannot be matched); else None.
+    ``near``: the near check when the pipeline's steps include it, else None.
+    ``fine``: the fine pass ranging may ask for, when the steps include it and the
+    parameters have one (``compute.fine_disparities`` below full resolution), else None.
     ``lr_consistent``: (H, W) bool, the measured pixels whose match passes the left-right check
     (or cannot be checked) whatever their depth-edge weight (:func:`.confidence.confidence_maps`),
     or None without the right matcher.
@@ -40,9 +90,8 @@ class DisparityResult:
     confidence: np.ndarray | None
     warning: str | None = None
     timings_ms: Mapping[str, float] = field(default_factory=dict)
-    near: Any = None
-    near_consistent: np.ndarray | None = None
-    fine: Callable[[tuple[int, int, int, int], int], Any] | None = None
+    near: NearCheck | None = None
+    fine: FineRematch | None = None
     lr_consistent: np.ndarray | None = None
 
 

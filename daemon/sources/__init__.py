@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from uav_depth.core.errors import ConfigError
-from uav_depth.daemon.sources.base import EndOfStream, Frame, FrameSource
+from uav_depth.core.frames import EndOfStream, Frame, FrameSource
 
 #: kind -> (module, source class, one-line help)
 SourceTable = Mapping[str, tuple[str, str, str]]

@@ -26,7 +26,7 @@ import numpy as np
 from uav_depth.core.calibration import Calibration
 from uav_depth.core.keys import Key, section_values
 from uav_depth.core.errors import DependencyError, SourceError
-from uav_depth.daemon.sources.base import Frame, device_capture_time
+from uav_depth.core.frames import Frame, device_capture_time
 
 
 @dataclass(frozen=True)

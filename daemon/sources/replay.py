@@ -22,7 +22,7 @@ from uav_depth.core.calibration import Calibration
 from uav_depth.core.keys import Key, section_values
 from uav_depth.core.errors import FileFormatError, SourceError
 from uav_depth.core.session import FrameRecord, find_sessions
-from uav_depth.daemon.sources.base import EndOfStream, Frame
+from uav_depth.core.frames import EndOfStream, Frame
 
 DEFAULT_RATE_HZ = 10.0
 log = logging.getLogger("uav_depth.sources.replay")

@@ -3,7 +3,8 @@
 A ZED Mini without the ZED SDK is a UVC camera that delivers both eyes in one
 frame, left half then right half (2560x720 for two 1280x720 eyes). ``right_device``
 switches to two separate V4L2 devices, grabbed back to back so the pair is as
-close in time as V4L2 allows. Frames are raw: rectification needs a calibration,
+close in time as V4L2 allows; a pair whose buffer timestamps lie more than half a
+frame period apart (unsynchronised eyes) is dropped and counted in the status line. Frames are raw: rectification needs a calibration,
 either the run config's ``calibration:`` or the ZED's own ``SN<serial>.conf``
 (``zed_calibration``), read here without the ZED SDK.
 
@@ -26,8 +27,10 @@ import numpy as np
 
 from uav_depth.core.calibration import Calibration
 from uav_depth.core.keys import Key, section_values
-from uav_depth.core.errors import CalibrationError, ConfigError, SourceError
-from uav_depth.daemon.sources.base import Frame, device_capture_time
+from uav_depth.core.errors import CalibrationError, ConfigError, FileFormatError, SourceError
+from uav_depth.core.fileio import read_text_file
+from uav_depth.core.yamlfile import MAX_YAML_BYTES
+from uav_depth.core.frames import Frame, device_capture_time
 
 
 def _check_device(value: Any) -> str | None:
@@ -110,8 +113,9 @@ def read_zed_conf(path: str | os.PathLike[str], width: int, height: int) -> Cali
                                f"but the camera delivers {width}")
     parser = configparser.ConfigParser()
     try:
-        if not parser.read(path):
-            raise CalibrationError(f"{path}: ZED calibration file not found")
+        parser.read_string(read_text_file(path, "ZED calibration file", MAX_YAML_BYTES), str(path))
+    except FileFormatError as exc:     # missing, not a regular file, too large, not UTF-8: one line
+        raise CalibrationError(str(exc)) from exc
     except configparser.Error as exc:
         raise CalibrationError(f"{path}: not a ZED calibration file ({exc})") from exc
 
@@ -158,6 +162,14 @@ class UvcSource:
         self.calibration: Calibration | None = None
         self._caps: list[Any] = []
         self._index = 0
+        self._period_s = 1.0 / config.fps
+        self.out_of_sync = 0        # two-camera pairs dropped: the eyes were captured too far apart
+
+    @property
+    def notes(self) -> tuple[str, ...]:
+        """For the status line: the pairs dropped because the two cameras' exposures were apart."""
+        n = self.out_of_sync
+        return (f"{n} stereo pair{'s' * (n != 1)} dropped (eyes captured more than half a frame apart)",) if n else ()
 
     def describe(self) -> str:
         c = self.config
@@ -201,6 +213,8 @@ class UvcSource:
                                   f"{' (two eyes side by side)' if sbs else ''}; set source.width/height to a mode "
                                   "the camera supports")
         self._index = 0
+        fps = self._caps[0].get(cv2.CAP_PROP_FPS)
+        self._period_s = 1.0 / (fps if fps and fps > 0 else c.fps)
 
     def close(self) -> None:
         for cap in self._caps:
@@ -223,7 +237,13 @@ class UvcSource:
         now = time.monotonic()
         # V4L2 buffer timestamps (CLOCK_MONOTONIC for UVC) through CAP_PROP_POS_MSEC; a driver on another
         # clock gives implausible values and the receive time is used instead
-        t_capture = device_capture_time([cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0 or None for cap in self._caps], now)
+        stamps = [cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0 or None for cap in self._caps]
+        if len(stamps) == 2 and None not in stamps and abs(stamps[0] - stamps[1]) > self._period_s / 2:
+            # Two free-running cameras: a pair exposed this far apart turns motion into disparity error
+            # (farther included), so it is dropped and counted, never matched.
+            self.out_of_sync += 1
+            return None
+        t_capture = device_capture_time(stamps, now)
         images = []
         for cap in self._caps:
             ok, img = cap.retrieve()

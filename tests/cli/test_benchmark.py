@@ -7,9 +7,9 @@ import sys
 import numpy as np
 import pytest
 
-from uav_depth.cli.benchmark import (Variant, flight_params, format_report, lever_variants, make_frames,
-                                        run)
+from uav_depth.cli.benchmark import Variant, format_report, lever_variants, make_frames, run
 from uav_depth.core.params import DEFAULT_PARAMS
+from uav_depth.core.params.flight import flight_params
 from uav_depth.sim.scene import background_period_px
 
 

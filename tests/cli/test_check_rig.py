@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
-from uav_depth.cli.commands.check_rig import EXIT_CANNOT_TELL, EXIT_MISALIGNED
-from uav_depth.cli.main import EXIT_CONFIG
+from uav_depth.cli.exit_codes import EXIT_CANNOT_TELL, EXIT_CONFIG, EXIT_MISALIGNED
 from uav_depth.core.calibration import Calibration
 from uav_depth.core.session import SessionWriter
 from uav_depth.sim.scene import Scene, SceneConfig

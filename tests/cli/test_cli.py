@@ -6,7 +6,8 @@ import sys
 
 import pytest
 
-from uav_depth.cli.main import COMMANDS, EXIT_CONFIG
+from uav_depth.cli.exit_codes import EXIT_CONFIG
+from uav_depth.cli.main import COMMANDS
 
 
 def cli(*args, check=True):
@@ -47,16 +48,24 @@ def test_disparity_command_writes_outputs(tmp_path):
         assert (tmp_path / f"d{suffix}").stat().st_size > 0
 
 
-def test_images_smaller_than_the_matching_window_give_an_empty_map_not_a_traceback(tmp_path):
-    """Issue 15: 8x8 images to `disparity` raised cv2.error (a traceback, exit 1)."""
+@pytest.mark.parametrize("width, height", [(8, 8), (100, 60), (130, 60)], ids=["8x8", "narrower", "no-margin"])
+def test_a_pair_the_search_cannot_match_is_refused_with_the_rule(tmp_path, width, height):
+    """The default search is 128 px plus half a 5-px block: a pair not wider than 130 px has no column to match.
+    It says so (one line, the key, the width) and exits 78, instead of writing an all-invalid map with exit 0."""
     import cv2
     import numpy as np
 
-    img = tmp_path / "t8.png"
-    cv2.imwrite(str(img), (np.random.default_rng(0).random((8, 8)) * 255).astype(np.uint8))
-    proc = cli("disparity", str(img), str(img), "--out", str(tmp_path / "d.npy"))
-    assert "Traceback" not in proc.stderr and "0.0% valid" in proc.stdout
-    assert np.isnan(np.load(tmp_path / "d.npy")).all()     # nothing measured: no made-up disparity
+    img = tmp_path / "pair.png"
+    cv2.imwrite(str(img), (np.random.default_rng(0).random((height, width)) * 255).astype(np.uint8))
+    proc = cli("disparity", str(img), str(img), "--out", str(tmp_path / "d.npy"), check=False)
+    assert proc.returncode == EXIT_CONFIG, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("uav-depth disparity: error: ")
+    assert "sgbm.num_disparities must leave columns to match" in lines[0] and f"width {width} px" in lines[0]
+    assert not (tmp_path / "d.npy").exists() and proc.stdout == ""
+    wide = tmp_path / "wide.png"            # one column more, and it computes
+    cv2.imwrite(str(wide), (np.random.default_rng(0).random((60, 131)) * 255).astype(np.uint8))
+    assert "valid" in cli("disparity", str(wide), str(wide), "--out", str(tmp_path / "w.npy")).stdout
 
 
 def test_bad_params_file_is_one_line_and_config_exit(tmp_path):

@@ -4,7 +4,7 @@ truth; long phases print progress on a terminal."""
 import io
 import re
 
-from uav_depth.cli.benchmark import flight_params
+from uav_depth.core.params.flight import flight_params
 from uav_depth.cli.progress import progress_line
 from uav_depth.cli.main import main
 

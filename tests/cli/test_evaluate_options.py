@@ -5,7 +5,8 @@ import math
 
 import pytest
 
-from uav_depth.cli.main import EXIT_CONFIG, main
+from uav_depth.cli.exit_codes import EXIT_CONFIG
+from uav_depth.cli.main import main
 from uav_depth.core.params import DEFAULT_PARAMS
 
 

@@ -5,7 +5,7 @@ import sys
 
 import pytest
 
-from uav_depth.cli.main import EXIT_CANTCREAT
+from uav_depth.cli.exit_codes import EXIT_CANTCREAT
 from uav_depth.core.errors import OutputExistsError
 from uav_depth.core.session import Session, prepare_output
 

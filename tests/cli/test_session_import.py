@@ -4,7 +4,8 @@ import cv2
 import numpy as np
 import pytest
 
-from uav_depth.cli.main import EXIT_CANTCREAT, EXIT_CONFIG, EXIT_ERROR, main
+from uav_depth.cli.exit_codes import EXIT_CANTCREAT, EXIT_CONFIG, EXIT_ERROR
+from uav_depth.cli.main import main
 from uav_depth.core.calibration import Calibration, save_calibration
 from uav_depth.core.session import Session
 

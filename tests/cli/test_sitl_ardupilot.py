@@ -34,7 +34,7 @@ from pathlib import Path
 
 import pytest
 
-from uav_depth.daemon.mavlink_enums import mavutil
+from uav_depth.daemon.link.vocabulary import mavutil
 
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLE = REPO / "deploy/examples/sitl.yaml"
@@ -51,8 +51,16 @@ GUIDED, LOITER, LAND = 4, 5, 9
 # the daemon's readings are single-frame estimates already gated nearer-first).
 AVOID = {"AVOID_ENABLE": 2, "AVOID_MARGIN": 1.5, "AVOID_BEHAVE": 1, "AVOID_ACCEL_MAX": 3.0, "PRX_FILT": 0.0}
 SENSORS = {"prx": {"PRX1_TYPE": 2}, "rf": {"RNGFND1_TYPE": 10, "PRX1_TYPE": 4}}
-#: Exist only after the reboot that follows RNGFND1_TYPE.
-RF_AFTER_REBOOT = {"RNGFND1_ORIENT": 0, "RNGFND1_MIN": 0.3, "RNGFND1_MAX": 7.0}
+
+
+
+def rf_after_reboot(config: Path = EXAMPLE) -> dict[str, float]:
+    """RNGFND1_ORIENT, _MIN, _MAX (they exist only after the reboot that follows RNGFND1_TYPE) as
+    ``uav-depth autopilot-params`` prints them for ``config``: the daemon's own rules."""
+    out = subprocess.run([sys.executable, "-m", "uav_depth.cli.main", "autopilot-params", "--config", str(config)],
+                         capture_output=True, text=True, check=True).stdout
+    after = out.split("# after", 1)[1]
+    return {w[2]: float(w[3]) for w in (line.split() for line in after.splitlines()) if w[:2] == ["param", "set"]}
 #: The highest approach speed at which these settings stopped at least 0.3 m short in Guided and Loiter
 #: (docs/sitl.md: 2 m/s since 2026-12-03, with PRX_FILT 0 and mavlink.proximity_commit, on an idle
 #: 2-core machine; 1 m/s before, under load); the test asserts it.
@@ -402,7 +410,7 @@ def prepare(sitl: Sitl, sensor: str, avoid: dict = AVOID) -> None:
     sitl.reboot()
     if "RNGFND1_TYPE" in SENSORS[sensor]:
         assert sitl.has_param("RNGFND1_ORIENT"), "RNGFND1_ORIENT does not exist after RNGFND1_TYPE=10 and a reboot"
-        for name, value in RF_AFTER_REBOOT.items():
+        for name, value in rf_after_reboot().items():
             sitl.set_param(name, value)
 
 
@@ -443,6 +451,7 @@ def test_avoidance_stops_the_approach_on_the_daemons_readings(tmp_path):
     for r in results:
         print(f"\n{r}")
     assert "scripted" not in log
+    assert "does not fit the range on the wire" not in log and "settings fit the range" in log, log[-3000:]
     # The daemon's readings reached the autopilot (the proximity id 10 stream) on every approach, and
     # track the geometry: never nearer than it was (beyond 5 % and 1 cm), and never older than what
     # the daemon may send (ranging.max_age_ms of the laptop config from capture, plus a pose at most
@@ -460,3 +469,35 @@ def test_avoidance_stops_the_approach_on_the_daemons_readings(tmp_path):
     # Avoidance held the slowest approach short of the surface in both modes, on those readings alone
     # (docs/sitl.md: the highest speed at which it holds, and why; faster ones are recorded above).
     assert all(r.closest_m >= 0.3 for r in results if r.speed <= HOLDS_MPS), results
+
+
+@needs_sitl
+@pytest.mark.timeout(300)
+def test_a_mismatched_rngfnd1_min_is_reported_within_5_s_of_connecting(tmp_path):
+    # issue 47 item 2: RNGFND1_MIN 0.3 above the 640x360 flight file's min_distance (23 cm) loses the
+    # readings in between ("out of range low"); the daemon reads it back and says so
+    port = free_udp_port()
+    sitl = Sitl(binary(), tmp_path / "sitl", port, instance=int(os.environ.get("UAV_DEPTH_ARDUCOPTER_INSTANCE", "0")))
+    sitl.start()
+    daemon = None
+    log_path = tmp_path / "daemon.log"
+    try:
+        for name, value in SENSORS["rf"].items():
+            sitl.set_param(name, value)
+        sitl.reboot()
+        assert sitl.has_param("RNGFND1_ORIENT"), "RNGFND1_ORIENT does not exist after RNGFND1_TYPE=10 and a reboot"
+        for name, value in {**rf_after_reboot(), "RNGFND1_MIN": 0.3}.items():
+            sitl.set_param(name, value)
+        daemon = start_daemon(port, tmp_path / "truth.csv", log_path)
+        assert sitl.wait(lambda: "answering the autopilot at" in log_path.read_text(), 90), log_path.read_text()
+        t_connected = time.monotonic()
+        assert sitl.wait(lambda: "RNGFND1_MIN is 0.3" in log_path.read_text(), 10), log_path.read_text()[-3000:]
+        took = time.monotonic() - t_connected
+        told = sitl.wait(lambda: any(t == "uav-depth: check RNGFND1_MIN 0.3" for _, t in sitl.rec.texts), 5)
+    finally:
+        stop(daemon)
+        sitl.close()
+    print(f"\nRNGFND1_MIN 0.3 reported {took:.2f} s after the daemon bound to SITL")
+    assert took <= 5.0
+    assert told, [t for _, t in sitl.rec.texts[-10:]]         # and the ground station saw the one STATUSTEXT
+    assert log_path.read_text().count("does not fit the range on the wire") == 1, log_path.read_text()[-3000:]

@@ -6,8 +6,9 @@ LOCAL_POSITION_NED only once its EKF uses GPS, about 40 s after boot; an earlier
 ``uav-depth sitl`` waited 30 s, then flew its scripted approach and fed the autopilot
 made-up distances. Here the autopilot sends HEARTBEAT only for WITHHOLD_S (60 s, as
 the issue asks, twice the 30 s after which the old fallback flew; TEST_SITL_WITHHOLD_S
-changes it): not one DISTANCE_SENSOR may
-carry a distance meanwhile. Then the pose comes and measured distances follow.
+changes it): not one DISTANCE_SENSOR may go out meanwhile (docs/wire.md: blind sends
+nothing; "too close" is a distance, min_distance + 1), while the daemon's HEARTBEAT goes
+out every second. Then the pose comes and measured distances follow.
 """
 
 from __future__ import annotations
@@ -23,23 +24,14 @@ import pytest
 import yaml
 
 from mavlink_peer import free_port
-from uav_depth.cli.benchmark import flight_params
-from uav_depth.cli.main import EXIT_CONFIG, EXIT_UNAVAILABLE
+from uav_depth.core.params.flight import flight_params
+from uav_depth.cli.exit_codes import EXIT_CONFIG, EXIT_UNAVAILABLE
 from uav_depth.core.params import save_params
-from uav_depth.daemon.mavlink_enums import mavutil
+from uav_depth.daemon.link.vocabulary import mavutil
 
 WITHHOLD_S = float(os.environ.get("TEST_SITL_WITHHOLD_S", "60"))
 TREE_NED = (2.0, 0.0, -3.0)
 HOVER_NORTH = 0.5                 # the vehicle hovers 1.5 m from the branch once it sends its pose
-
-
-def carries_distance(m) -> bool:
-    """A DISTANCE_SENSOR an autopilot would act on: anything but the link's 'no measurement'.
-
-    'No measurement' is current = max + 1 with signal_quality 1; a reading with any other
-    quality, in range or 'clear' (max + 1), tells the autopilot something about the way ahead.
-    """
-    return not (m.signal_quality == 1 and m.current_distance > m.max_distance)
 
 
 class Autopilot:
@@ -48,6 +40,7 @@ class Autopilot:
     def __init__(self, port: int):
         self.conn = mavutil().mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=1)
         self.readings: list[tuple[float, object]] = []
+        self.heartbeats: list[float] = []       # arrival of the daemon's HEARTBEATs
         self.intervals: dict[int, float] = {}
         self.posing = threading.Event()
         self.stop = threading.Event()
@@ -71,6 +64,8 @@ class Autopilot:
             while (msg := self.conn.recv_match(blocking=False)) is not None:
                 if msg.get_type() == "DISTANCE_SENSOR":
                     self.readings.append((time.monotonic(), msg))
+                elif msg.get_type() == "HEARTBEAT":
+                    self.heartbeats.append(time.monotonic())
                 elif msg.get_type() == "COMMAND_LONG" and msg.command == 511:
                     self.intervals[int(msg.param1)] = msg.param2
                     mav.command_ack_send(511, 0)
@@ -139,25 +134,27 @@ def test_no_distance_until_the_autopilot_sends_its_pose(tmp_path):
         t_pose = time.monotonic()
         ap.posing.set()
         deadline = t_pose + 90
-        while time.monotonic() < deadline and sum(carries_distance(m) for _, m in ap.readings) < 5:
+        while time.monotonic() < deadline and len(ap.readings) < 5:
             assert proc.poll() is None, proc.stdout.read()
             time.sleep(0.1)
     finally:
         out = finish(proc)
         ap.close()
     blind = [m for t, m in ap.readings if t < t_pose]
-    sent = [m for m in blind if carries_distance(m)]
-    assert not sent, (f"{len(sent)} of {len(blind)} DISTANCE_SENSOR carried a distance before the autopilot sent "
-                      f"its pose: {[(m.current_distance, m.signal_quality) for m in sent[:5]]}")
+    assert not blind, (f"{len(blind)} DISTANCE_SENSOR went out before the autopilot sent its pose: "
+                       f"{[(m.current_distance, m.signal_quality) for m in blind[:5]]}")
+    # and its HEARTBEAT every second meanwhile (issue 47 item 6: none for the 43 s ArduPilot takes)
+    beats = [t for t in ap.heartbeats if t < t_pose]
+    assert len(beats) >= 2 and max(b - a for a, b in zip(beats, beats[1:])) < 2.0, beats
     # It asked for the pose while it waited, and said it was waiting, not flying a script.
     assert 32 in ap.intervals and 30 in ap.intervals, ap.intervals
     assert "scripted" not in out and ("still blind after" in out or WITHHOLD_S < 11), out[-3000:]
     # The pose came: measured distances follow, and they are the vehicle's geometry (1.5 m).
-    after = [m.current_distance / 100.0 for t, m in ap.readings if t >= t_pose and carries_distance(m)]
+    after = [m.current_distance / 100.0 for t, m in ap.readings if t >= t_pose]
     assert len(after) >= 5, out[-3000:]
     truth = TREE_NED[0] - HOVER_NORTH
     assert all(abs(d - truth) <= 0.05 * truth + 0.01 for d in after), after
-    print(f"\nblind {WITHHOLD_S:g} s: {len(blind)} DISTANCE_SENSOR, 0 with a distance; then {len(after)} measured "
+    print(f"\nblind {WITHHOLD_S:g} s: no DISTANCE_SENSOR, {len(beats)} HEARTBEAT; then {len(after)} measured "
           f"({min(after):.2f}..{max(after):.2f} m, truth {truth:.2f} m)")
 
 
@@ -176,7 +173,8 @@ def test_wait_limit_says_what_is_missing(tmp_path):
     assert len(errors) == 1, out[-2000:]
     assert "within --wait-s 3 s (autopilot system 1 component 1 heard; no LOCAL_POSITION_NED and ATTITUDE yet)" \
         in errors[0]
-    assert not [m for _, m in ap.readings if carries_distance(m)]
+    assert not ap.readings
+    assert len(ap.heartbeats) >= 2, ap.heartbeats       # the daemon's HEARTBEAT while it waited
 
 
 def test_scripted_is_refused_toward_an_autopilot(tmp_path):
@@ -205,7 +203,7 @@ def test_force_scripted_flies_the_script_toward_an_autopilot(tmp_path):
     ap = Autopilot(port)       # never sends a pose: the scripted rig stands 1.5 m from the branch
     try:
         deadline = time.monotonic() + 90
-        while time.monotonic() < deadline and sum(carries_distance(m) for _, m in ap.readings) < 3:
+        while time.monotonic() < deadline and len(ap.readings) < 3:
             assert proc.poll() is None, proc.stdout.read()
             time.sleep(0.1)
     finally:
@@ -213,5 +211,5 @@ def test_force_scripted_flies_the_script_toward_an_autopilot(tmp_path):
         ap.close()
     assert "--force-scripted: the autopilot (system 1 component 1) receives the scripted approach's made-up " \
            "distances" in out, out[-2000:]
-    got = [m.current_distance / 100.0 for _, m in ap.readings if carries_distance(m)]
+    got = [m.current_distance / 100.0 for _, m in ap.readings]
     assert len(got) >= 3 and all(abs(d - 1.5) < 0.08 for d in got), (got, out[-2000:])

@@ -12,10 +12,10 @@ import time
 import pytest
 import yaml
 
-from uav_depth.cli.benchmark import flight_params
-from uav_depth.cli.main import EXIT_CONFIG
+from uav_depth.core.params.flight import flight_params
+from uav_depth.cli.exit_codes import EXIT_CONFIG
 from uav_depth.core.params import save_params
-from uav_depth.daemon.mavlink_enums import mavutil
+from uav_depth.daemon.link.vocabulary import mavutil
 
 
 def sitl(*args, timeout=60):

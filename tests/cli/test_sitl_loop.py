@@ -24,10 +24,10 @@ from dataclasses import dataclass, field
 import pytest
 import yaml
 
-from uav_depth.cli.benchmark import flight_params
+from uav_depth.core.params.flight import flight_params
 from uav_depth.core.params import save_params
-from uav_depth.daemon.mavlink_enums import mavutil
-from uav_depth.daemon.ranging import RangingConfig
+from uav_depth.daemon.link.vocabulary import mavutil
+from uav_depth.core.ranging import RangingConfig
 
 TREE_NED = (3.0, 0.0, -2.0)
 RATE_HZ = 20.0

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from uav_depth.core.disparity import DisparityPipeline
+from uav_depth.core.disparity import MEASURED, DisparityPipeline
 from uav_depth.core.errors import FrameError, ParameterWarning
 from uav_depth.core.params import DEFAULT_PARAMS
 
@@ -46,7 +46,7 @@ def test_each_paper_parameter_is_live(motorcycle, key, value):
 def test_wls_filter_does_not_clobber_matcher():
     p = DisparityPipeline(DEFAULT_PARAMS.replace(**{"sgbm.disp12_max_diff": 3, "sgbm.uniqueness_ratio": 15,
                                                      "sgbm.speckle_window_size": 50}))
-    m = p.left_matcher
+    m = p.match.matchers.left
     assert (m.getDisp12MaxDiff(), m.getUniquenessRatio(), m.getSpeckleWindowSize()) == (3, 15, 50)
 
 
@@ -258,7 +258,7 @@ def test_confidence_is_opencv_wls_confidence_wherever_no_neighbour_is_unmatched(
     left, right, _ = motorcycle
     params = DEFAULT_PARAMS.replace(**changes)
     sg = params.sgbm
-    res = DisparityPipeline(params, refine=False).run(left, right)
+    res = DisparityPipeline(params, MEASURED).run(left, right)
     opencv = _opencv_confidence(params, left, right)
     m = build_matchers(params)
     l16, r16 = m.left.compute(left, right), m.right.compute(right, left)
@@ -298,11 +298,11 @@ def test_a_thin_object_with_a_few_unmatched_pixels_keeps_its_confidence():
                                      {"compute.roi": ROI, "compute.scale": 0.5, "sgbm.num_disparities": 64,
                                       "compute.wls_at": "matched", "compute.grey": True}],
                          ids=["baseline", "roi-half-wls-input", "roi-half-wls-matched"])
-def test_without_refine_measured_and_confidence_are_unchanged_and_wls_is_skipped(small_frame, changes):
+def test_without_wls_measured_and_confidence_are_unchanged_and_wls_is_skipped(small_frame, changes):
     _, f = small_frame
     params = DEFAULT_PARAMS.replace(**changes)
     full = DisparityPipeline(params).run(f.left, f.right)
-    lean = DisparityPipeline(params, refine=False).run(f.left, f.right)
+    lean = DisparityPipeline(params, MEASURED).run(f.left, f.right)
     if "compute.roi" not in changes:        # the full frame: the left matcher's crop is the whole image
         assert np.array_equal(full.measured, lean.measured, equal_nan=True)
         assert np.array_equal(full.confidence, lean.confidence)
@@ -506,13 +506,13 @@ def test_the_flight_maps_under_the_region_equal_the_whole_crops_resize(small_fra
     _, f = small_frame
     params = DEFAULT_PARAMS.replace(**{"compute.roi": ROI, "compute.scale": 0.5, "sgbm.num_disparities": 64,
                                        "compute.wls_at": "matched"})
-    pipe = DisparityPipeline(params, refine=False)
+    pipe = DisparityPipeline(params, MEASURED)
     res = pipe.run(f.left, f.right)
     h, w = f.left.shape[:2]
     win = window(params, w, h)
     prep = prepare(params.compute, win, f.left, f.right)
-    l16 = pipe._match_left(win, prep)
-    r16 = pipe.matchers.right.compute(prep.right_m, prep.left_m)
+    l16 = pipe.match._match_left(win, prep)
+    r16 = pipe.match.matchers.right.compute(prep.right_m, prep.left_m)
     meas = cv2.resize(to_float(l16, 0, win.ratio), win.crop_size, interpolation=cv2.INTER_NEAREST)[win.inner()]
     conf = cv2.resize(lr_confidence(l16, r16, params.sgbm), win.crop_size, interpolation=cv2.INTER_LINEAR)
     conf = np.clip(conf[win.inner()] / 255.0, 0.0, 1.0)
@@ -599,25 +599,25 @@ def test_the_near_pass_confidence_computed_when_asked_is_the_one_computed_at_onc
     """The near pass leaves its confidence's weights until ranging asks (rule 4): what it then computes is the
     eager pipeline's map, padded (1280) or not (4000), and its left-right check is computed at once."""
     from pathlib import Path
-    from uav_depth.core.disparity import _NearPass, flight_pipeline
-    from uav_depth.core.disparity.near import near_params, pad_views
+    from uav_depth.core.disparity import flight_pipeline
+    from uav_depth.core.disparity.near import NearStage, near_params, pad_views
     from uav_depth.core.disparity.prepare import grey
     from uav_depth.core.params import load_params
 
     params = load_params(Path(__file__).parents[2] / "deploy" / "params-flight.yaml")
     left, right, _, (x0, y0, x1, y1) = _near_frame(width, 720, 700.0 * width / 1280, 0.063, 0.20)
     res = flight_pipeline(params).run(left, right)
-    assert res.near_consistent is not None and res.near_consistent.any()
+    assert res.near.consistent is not None and res.near.consistent.any()
     lazy = res.near.confidence()
     assert lazy is res.near.confidence()                    # computed once
-    rows, pad_l, pad_r, pipe = _NearPass(params)._for(width, 720)
+    rows, pad_l, pad_r, stage = NearStage(params).for_size(width, 720)
     if rows is None:
-        eager = DisparityPipeline(near_params(params), refine=False).run(left, right)
+        eager = DisparityPipeline(near_params(params), MEASURED).run(left, right)
         np.testing.assert_array_equal(lazy, eager.confidence)
-        np.testing.assert_array_equal(res.near_consistent, eager.lr_consistent)
+        np.testing.assert_array_equal(res.near.consistent, eager.lr_consistent)
     else:        # the padded band (1280): the eager pipeline on the same mirrored rows
         band = pad_views(grey(left[rows]), grey(right[rows]), pad_l, pad_r)
-        eager = DisparityPipeline(pipe.params, refine=False).run(*band)
+        eager = DisparityPipeline(stage.params, MEASURED).run(*band)
         np.testing.assert_array_equal(lazy[rows], eager.confidence[:, pad_l:pad_l + width])
         assert not lazy[:rows.start].any() and not lazy[rows.stop:].any()
     assert lazy.shape == left.shape[:2] and (lazy[y0:y1, x0:x1] > 0.5).any()

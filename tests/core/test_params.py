@@ -41,6 +41,9 @@ BAD = [
     ("odd", {"sgbm": {"block_size": 4}}, "sgbm.block_size must be odd, but got 4"),
     ("range", {"sgbm": {"uniqueness_ratio": 101}}, "sgbm.uniqueness_ratio must be between 0 and 100, but got 101"),
     ("p2-gt-p1", {"sgbm": {"p1": 500, "p2": 400}}, "sgbm.p2 must be greater than sgbm.p1 (500), but got 400"),
+    ("search-below-zero", {"sgbm": {"min_disparity": -16, "num_disparities": 16}},
+     "sgbm.num_disparities must reach positive disparities: with sgbm.min_disparity -16 the largest disparity "
+     "searched (min_disparity + num_disparities - 1) must be at least 1"),
     ("3way-uniqueness-100", {"sgbm": {"mode": "sgbm_3way", "uniqueness_ratio": 100}},
      "sgbm.uniqueness_ratio must be at most 99 with sgbm.mode sgbm_3way (OpenCV's 3-way matcher divides by"),
     ("mode", {"sgbm": {"mode": "fast"}}, "sgbm.mode must be one of sgbm, sgbm_3way, hh, hh4, but got 'fast'"),
@@ -204,18 +207,6 @@ def test_disparity_search_range_from_working_distance():
         disparity_search_range(700.0, 0.063, 0.01)
 
 
-def test_flight_parameter_file_is_the_documented_settings():
-    """deploy/params-flight.yaml is what benchmark.flight_params() says (regenerate it if this fails)."""
-    from pathlib import Path
-
-    from uav_depth.cli.benchmark import flight_params
-
-    path = Path(__file__).resolve().parents[2] / "deploy" / "params-flight.yaml"
-    flight = load_params(path)
-    assert flight == flight_params()
-    assert flight.sgbm.mode == "sgbm_3way" and flight.compute.scale == 0.5 and flight.compute.grey
-
-
 _MATCH_AT_BOUND = """
 import sys, numpy as np
 from uav_depth.core.disparity import flight_pipeline
@@ -242,3 +233,15 @@ def test_every_mode_runs_at_the_highest_uniqueness_the_schema_accepts():
     out = subprocess.run([sys.executable, "-c", _MATCH_AT_BOUND], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, f"exit {out.returncode}: {out.stderr[-2000:]}"
     assert out.stdout.split() == ["sgbm", "100", "sgbm_3way", "99", "hh", "100", "hh4", "100"]
+
+
+def test_the_lowest_search_the_schema_accepts_builds_the_flight_pipeline():
+    # The schema fuzz (bench/params_fuzz.py) found min_disparity -16 with num_disparities 16: the flight
+    # pipeline's near pass divided by the largest disparity searched, 0 (ZeroDivisionError, a traceback).
+    from uav_depth.core.disparity import flight_pipeline
+
+    for low, num in ((-14, 16), (-256, 272), (0, 16)):
+        flight_pipeline(params_from_dict({"sgbm": {"min_disparity": low, "num_disparities": num}}))
+    for low, num in ((-15, 16), (-16, 16), (-256, 256), (-100, 32)):
+        with pytest.raises(ConfigError, match="must reach positive disparities"):
+            params_from_dict({"sgbm": {"min_disparity": low, "num_disparities": num}})

@@ -6,11 +6,10 @@ import numpy as np
 import pytest
 
 from uav_depth.core.calibration import Calibration
-from uav_depth.daemon.ranging import RangingConfig
+from uav_depth.core.ranging import RangingConfig, Ranger, default_roi
 from uav_depth.core.disparity import DisparityPipeline
 from uav_depth.core.errors import CalibrationError, FrameError
 from uav_depth.core.params import DEFAULT_PARAMS
-from uav_depth.daemon.ranging import Ranger, default_roi
 from uav_depth.core.rectify import Rectifier
 from uav_depth.sim.scene import Pose, Scene, SceneConfig
 

@@ -50,3 +50,53 @@ def test_missing_directory_and_unreadable_files_name_what_they_should_be(tmp_pat
         locked.chmod(0)
         with pytest.raises(FileFormatError, match=r"cannot read thing: permission denied for this user"):
             read_text_file(locked, "thing")
+
+
+def _alias_bomb(levels: int) -> str:
+    """The "billion laughs": each level lists the one before nine times (9**levels strings from ~40 bytes a line)."""
+    lines = ['l0: &l0 ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
+    lines += [f"l{i}: &l{i} [" + ", ".join([f"*l{i - 1}"] * 9) + "]" for i in range(1, levels + 1)]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("text,message", [
+    (_alias_bomb(5), r"uses a YAML anchor \('l0'\) at line 1; anchors and aliases are not accepted"),
+    ("sgbm:\n  p1: 600\nwls:\n  lambda: *x\n", r"uses a YAML alias \('x'\) at line 4"),
+    ("base: &b {p1: 600}\nsgbm:\n  <<: *b\n", r"uses a YAML anchor \('b'\) at line 1"),
+], ids=["alias-bomb", "alias", "merge-key"])
+def test_anchors_and_aliases_are_refused_where_the_parser_meets_the_first(text, message):
+    with pytest.raises(FileFormatError, match=message):
+        parse_yaml(text, "f.yaml", "parameter file")
+    assert parse_yaml("a: '&x *y'\nb: '*z'\n") == {"a": "&x *y", "b": "*z"}   # the characters in a string are fine
+
+
+def test_a_1kb_alias_bomb_is_refused_before_anything_is_built(tmp_path):
+    bomb = tmp_path / "params.yaml"
+    bomb.write_text(_alias_bomb(9))     # 9**9 strings once expanded
+    assert len(bomb.read_bytes()) < 1024
+    with pytest.raises(FileFormatError, match=r"params\.yaml: parameter file uses a YAML anchor \('l0'\) at line 1"):
+        load_yaml_file(bomb, "parameter file")
+
+
+def test_a_yaml_file_over_the_size_cap_is_refused_by_its_size(tmp_path):
+    from uav_depth.core.yamlfile import MAX_YAML_BYTES
+
+    big = tmp_path / "big.yaml"
+    big.write_text("# padding\n" * (MAX_YAML_BYTES // 10) + "sgbm: {p1: 600}\n")
+    with pytest.raises(FileFormatError, match=rf"big\.yaml: config is {big.stat().st_size} bytes, more than the "
+                                              rf"64 KiB a config may have"):
+        load_yaml_file(big, "config")
+    ok = tmp_path / "ok.yaml"
+    ok.write_text("# padding\n" * (MAX_YAML_BYTES // 10 - 2) + "sgbm: {p1: 600}\n")
+    assert load_yaml_file(ok, "config") == {"sgbm": {"p1": 600}}
+
+
+def test_a_fifo_or_a_device_is_refused_without_waiting_or_reading(tmp_path):
+    fifo = tmp_path / "params.yaml"
+    os.mkfifo(fifo)                     # opening it for reading would wait for a writer
+    with pytest.raises(FileFormatError, match=r"parameter file is not a regular file \(a device, FIFO or socket\)"):
+        load_yaml_file(fifo, "parameter file")
+    zero = tmp_path / "zero.yaml"
+    zero.symlink_to("/dev/zero")        # reading it would never end
+    with pytest.raises(FileFormatError, match=r"zero\.yaml: config is not a regular file"):
+        load_yaml_file(zero, "config")

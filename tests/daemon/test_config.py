@@ -127,7 +127,7 @@ def test_invalid_yaml_and_missing_file(tmp_path):
 @pytest.mark.parametrize("name,code", [("forward", 0), ("down", 25), ("up", 24), ("back", 4), ("ROLL_180", 8),
                                        (3, 3)])
 def test_orientation_names(name, code):
-    from uav_depth.daemon.mavlink_enums import orientation_code
+    from uav_depth.daemon.link.vocabulary import orientation_code
 
     assert orientation_code(name) == code
     assert run_config_from_dict({"source": SYNTH, "mavlink": {"orientation": name}}, sources=SOURCES).mavlink.orientation == name
@@ -141,3 +141,11 @@ def test_reference_documents_every_key():
     for kind in SOURCES:
         for key in source_keys(kind, SOURCES):
             assert f"`source.{key.name}` ({kind})" in table
+
+
+def test_a_setting_given_as_text_is_read_without_anchors_or_aliases():
+    from uav_depth.daemon.config import parse_value
+
+    assert parse_value("25") == 25 and parse_value("[1, 2]") == [1, 2] and parse_value("{a: 1}") == {"a": 1}
+    bomb = "[&a [x, x, x, x, x, x, x, x, x], [*a, *a, *a, *a, *a, *a, *a, *a, *a]]"
+    assert parse_value(bomb) == bomb     # stays text: the key's own rule names it, nothing is expanded

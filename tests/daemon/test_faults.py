@@ -8,6 +8,7 @@ See docs/operations.md.
 
 from __future__ import annotations
 
+import functools
 import os
 import pwd
 import re
@@ -24,7 +25,7 @@ import numpy as np
 import pytest
 import yaml
 
-from uav_depth.cli.main import EXIT_CONFIG, EXIT_UNAVAILABLE
+from uav_depth.cli.exit_codes import EXIT_CONFIG, EXIT_UNAVAILABLE
 from uav_depth.core.params import DEFAULT_PARAMS, dump_params
 from uav_depth.core.session import SessionWriter
 from uav_depth.sim.scene import Scene, SceneConfig
@@ -55,11 +56,40 @@ def config(port: int, params_file: Path | str | None, **extra) -> dict:
 
 
 def as_nobody() -> list[str]:
-    """Prefix that runs a command as an unprivileged user (root reads every file, whatever its mode)."""
+    """Prefix that runs a command as an unprivileged user (root reads every file, whatever its mode).
+
+    Needs setpriv (util-linux): missing, the test skips with that reason on a laptop and fails in CI
+    (``CI=true``). Where ``nobody`` cannot run this interpreter or import uav_depth (a virtualenv under
+    a private home), every daemon would die of that before reading its files: the test skips and says so.
+    """
     if not IS_ROOT:
         return []
+    return _nobody_prefix()
+
+
+@functools.lru_cache(maxsize=None)
+def _nobody_check() -> tuple[list[str], str | None]:
+    if shutil.which("setpriv") is None:
+        return [], "setpriv (util-linux) is not installed"
     pw = pwd.getpwnam("nobody")
-    return ["setpriv", f"--reuid={pw.pw_uid}", f"--regid={pw.pw_gid}", "--clear-groups"]
+    prefix = ["setpriv", f"--reuid={pw.pw_uid}", f"--regid={pw.pw_gid}", "--clear-groups"]
+    # The daemon also starts this interpreter again (the parameter trial's child process).
+    probe = subprocess.run([*prefix, sys.executable, "-c", "import subprocess, sys, uav_depth.cli.main; "
+                            "subprocess.run([sys.executable, '-c', 'import uav_depth.daemon.trial'], check=True)"],
+                           capture_output=True, text=True, timeout=120, cwd="/")
+    if probe.returncode != 0:
+        last = (probe.stderr.strip().splitlines() or [f"exit {probe.returncode}"])[-1]
+        return [], f"the user nobody cannot run {sys.executable} with uav_depth ({last})"
+    return prefix, None
+
+
+def _nobody_prefix() -> list[str]:
+    prefix, problem = _nobody_check()
+    if problem is None:
+        return prefix
+    if problem.startswith("setpriv") and os.environ.get("CI") == "true":
+        pytest.fail(f"{problem}: CI must have it (.ci/system-deps)")
+    pytest.skip(problem)
 
 
 class Daemon:
@@ -190,7 +220,30 @@ mavlink:
   rate_hz: 50
 """
 
+def alias_bomb(levels: int = 9) -> bytes:
+    """Under 1 KB of YAML that expands into 9**levels strings (the "billion laughs")."""
+    lines = ['l0: &l0 ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
+    lines += [f"l{i}: &l{i} [" + ", ".join([f"*l{i - 1}"] * 9) + "]" for i in range(1, levels + 1)]
+    return ("\n".join(lines) + "\n").encode()
+
+
+OVERSIZE_PARAMS = GOOD + b"# padding\n" * 7000      # a valid file, past the 64 KiB cap
+
+#: OpenCV's 3-way matcher dies of SIGFPE at uniqueness 100 (issue 44: params check passed it, run died).
+THREE_WAY_100 = _params_with(**{"sgbm.mode": "sgbm_3way"}).replace(b"uniqueness_ratio: 10\n",
+                                                                   b"uniqueness_ratio: 100\n")
+
 STARTUP_FAULTS = [
+    pytest.param(_setup_params(THREE_WAY_100), r"sgbm\.uniqueness_ratio must be at most 99 with sgbm\.mode sgbm_3way",
+                 id="params-3way-uniqueness-100"),
+    pytest.param(_setup_params(alias_bomb()), r"parameter file uses a YAML anchor \('l0'\) at line 1",
+                 id="params-alias-bomb"),
+    pytest.param(_setup_params(OVERSIZE_PARAMS), r"parameter file is \d+ bytes, more than the 64 KiB",
+                 id="params-over-the-size-cap"),
+    pytest.param(_setup_config_bytes(b"source:\n  kind: synthetic\n  scene: {width: 100000, height: 100000}\n"),
+                 r"source\.scene\.width must be between 32 and 4096, but got 100000", id="scene-100000-px"),
+    pytest.param(_setup_config_bytes(b"source:\n  kind: synthetic\n" + alias_bomb()),
+                 r"config uses a YAML anchor \('l0'\) at line 3", id="config-alias-bomb"),
     pytest.param(_setup_params(b"sgbm:\n  p1: 600  # caf\xe9\n"), r"parameter file is not UTF-8 text \(byte 0xe9",
                  id="params-not-utf8"),
     pytest.param(_setup_params(b""), r"must set at least one section \(sgbm, wls, compute\); an empty file is not",
@@ -225,11 +278,16 @@ STARTUP_FAULTS = [
 ]
 
 
+#: The faults only an unprivileged user meets (root reads and writes whatever the modes say).
+AS_NOBODY = (_setup_key_unreadable, _setup_logdir_not_writable)
+
+
 @pytest.mark.parametrize("setup,message", STARTUP_FAULTS)
 def test_a_fault_in_a_file_is_one_line_and_exit_78_for_run_and_run_check(shared_dir, port, setup, message):
+    user = as_nobody() if setup in AS_NOBODY else None
     cfg = setup(shared_dir, port)
     for extra in ((), ("--check",)):
-        daemon = run_daemon(shared_dir, cfg, *extra, user=as_nobody())
+        daemon = run_daemon(shared_dir, cfg, *extra, user=user)
         try:
             code = daemon.wait(120)
         finally:
@@ -344,6 +402,10 @@ RELOAD_FAULTS = [
     pytest.param(_params_with(**{"sgbm.num_disparities": 224, "sgbm.block_size": 31}),
                  r"must measure a test render", id="search-range-hides-the-roi"),
     pytest.param(b"\x00\x01\x02\x03", r"parameter file is a binary file", id="binary"),
+    pytest.param(alias_bomb(), r"parameter file uses a YAML anchor \('l0'\) at line 1", id="alias-bomb"),
+    pytest.param(THREE_WAY_100, r"sgbm\.uniqueness_ratio must be at most 99 with sgbm\.mode sgbm_3way",
+                 id="3way-uniqueness-100"),
+    pytest.param(OVERSIZE_PARAMS, r"parameter file is \d+ bytes, more than the 64 KiB", id="over-the-size-cap"),
 ]
 
 
@@ -352,16 +414,21 @@ def test_a_bad_new_parameter_file_keeps_the_last_good_and_the_daemon_flies(flyin
     d, rx, daemon = flying
     kept = f"uav-depth: params rejected, kept {PARAMS_64.hash()[:8]}"
     before = len(daemon.stderr().splitlines())
+    t_replace = time.monotonic()
     _replace(d / "params.yaml", data)
     daemon.proc.send_signal(signal.SIGHUP)      # systemctl kill -s HUP, as the docs recommend
     daemon.wait_for(lambda: any(re.search(message, ln) for ln in daemon.stderr().splitlines()[before:]
                                 if "parameters rejected, keeping " + PARAMS_64.hash() in ln), 60, "the rejection")
     assert rx.wait(lambda: kept in rx.texts(), timeout=10)
+    daemon.proc.send_signal(signal.SIGHUP)      # the same file again: judged once, said once
     t = time.monotonic()
     assert rx.wait(lambda: len(rx.of("DISTANCE_SENSOR", since=t)) >= 10, timeout=10), "the messages stopped"
     err = daemon.stderr()
     assert daemon.proc.poll() is None and "Traceback" not in err
     assert "parameters reloaded" not in err
+    rejections = [ln for ln in err.splitlines()[before:] if "parameters rejected" in ln]
+    assert len(rejections) == 1, rejections
+    assert sum(m.text == kept for m in rx.of("STATUSTEXT", since=t_replace)) == 1
 
 
 def test_a_half_written_file_is_never_loaded(flying):
@@ -390,6 +457,13 @@ def test_a_half_written_file_is_never_loaded(flying):
 def _caught(pid: int) -> int:
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("SigCgt:"):
+            return int(line.split()[1], 16)
+    return 0
+
+
+def _blocked(pid: int) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("SigBlk:"):
             return int(line.split()[1], 16)
     return 0
 
@@ -427,6 +501,56 @@ def test_a_signal_right_after_exec_is_handled_before_any_slow_import(tmp_path, s
         assert "SIGHUP before start-up: nothing to reload yet" in err
     else:
         assert f"stopped before start-up finished ({sig.name})" in err or "shutdown complete" in err
+
+
+def unit_exec_prefix() -> list[str]:
+    """What deploy/uav-depth.service puts before the daemon's command (``env --block-signal=...``)."""
+    unit = Path(__file__).resolve().parents[2] / "deploy" / "uav-depth.service"
+    line = next(ln for ln in unit.read_text().splitlines() if ln.startswith("ExecStart="))
+    words = line.split("=", 1)[1].split()
+    return words[:next(i for i, w in enumerate(words) if w.endswith("/bin/uav-depth"))]
+
+
+def test_the_unit_holds_exactly_the_signals_the_daemon_handles():
+    from uav_depth.cli.signals import HANDLED
+
+    prefix = unit_exec_prefix()
+    assert prefix[0] == "/usr/bin/env" and prefix[1].startswith("--block-signal=")
+    assert sorted(prefix[1].split("=", 1)[1].split(",")) == sorted(s.name[3:] for s in HANDLED)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP], ids=lambda s: s.name)
+def test_a_signal_sent_at_exec_under_the_units_start_is_handled_with_one_line(tmp_path, sig):
+    # Sent before the interpreter has run a line: only the unit's blocked start can keep it for the handlers.
+    rx = Receiver()
+    (tmp_path / "params.yaml").write_bytes(GOOD)
+    path = tmp_path / "run.yaml"
+    path.write_text(yaml.safe_dump(config(rx.port, tmp_path / "params.yaml")))
+    err_path = tmp_path / "stderr.txt"
+    proc = subprocess.Popen([*unit_exec_prefix(), sys.executable, "-m", "uav_depth.cli.main", "run", "--config",
+                             str(path)], stdout=subprocess.DEVNULL, stderr=open(err_path, "w"))
+    try:
+        deadline = time.monotonic() + 60
+        while _blocked(proc.pid) & WANTED != WANTED:     # env has blocked them (microseconds after exec)
+            assert time.monotonic() < deadline and proc.poll() is None, err_path.read_text()
+        proc.send_signal(sig)
+        if sig == signal.SIGHUP:
+            assert rx.wait(lambda: len(rx.of("DISTANCE_SENSOR")) >= 3, timeout=180), err_path.read_text()[-3000:]
+            proc.send_signal(signal.SIGTERM)
+        code = proc.wait(120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+        rx.close()
+    err = err_path.read_text()
+    assert code == 0, err[-3000:]
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-3000:]
+    assert f"({sig.name} sent before then: held blocked, handled now)" in err, err[-3000:]
+    if sig == signal.SIGHUP:
+        assert "SIGHUP before start-up: nothing to reload yet" in err
+    else:
+        assert f"stopped before start-up finished ({sig.name})" in err, err[-3000:]
 
 
 # -- replay, signing key path, free space -------------------------------------------------------------

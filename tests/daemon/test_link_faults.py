@@ -8,6 +8,7 @@ assertions are about what arrived (truth), with generous time limits: the machin
 """
 
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -152,6 +153,45 @@ def test_a_stalled_tcp_peer_gets_no_old_distances_and_its_return_is_taken_at_onc
             peer.close()
 
 
+@pytest.mark.parametrize("case", ["answers no TIMESYNC", "answers TIMESYNC unsigned, signing on"])
+def test_a_tcp_peer_that_cannot_show_it_reads_gets_no_old_readings(tmp_path, case):
+    # issue 44 item 4: a peer that does not answer TIMESYNC was written to directly; stopped for 10 s it
+    # received 188 readings older than 300 ms on resume (192 with signing on and the answers unsigned,
+    # which signing drops). On TCP a measurement now goes out only after an answer the link accepts.
+    port = free_port(socket.SOCK_STREAM)
+    mavlink = {}
+    if "signing" in case:
+        key = tmp_path / "mavlink.key"
+        key.write_text("correct horse battery staple\n")
+        key.chmod(0o600)
+        mavlink["signing_key_file"] = str(key)
+    daemon = Daemon(tmp_path, f"tcpin:127.0.0.1:{port}", mavlink=mavlink)
+    peer = None
+    try:
+        deadline = time.monotonic() + 60
+        while peer is None:
+            try:
+                peer = Receiver(f"tcp:127.0.0.1:{port}", autopilot="unsigned" in case)
+            except OSError:
+                assert time.monotonic() < deadline, daemon.stderr()[-2000:]
+                time.sleep(0.2)
+        wait_for(lambda: "ready:" in daemon.stderr() and len(peer.of("HEARTBEAT")) >= 3, 90, daemon,
+                 "start-up and 3 heartbeats")
+        peer.pause()                                   # SIGSTOP-like: it reads and answers nothing
+        time.sleep(4.0)
+        peer.resume()
+        t_resume = time.monotonic()
+        wait_for(lambda: len(peer.of("HEARTBEAT", since=t_resume)) >= 2, 30, daemon, "heartbeats after resume")
+        time.sleep(1.0)
+        old = [age_ms(t, m) for t, m in peer.timed("DISTANCE_SENSOR", since=t_resume) if age_ms(t, m) > MAX_AGE_MS]
+    finally:
+        daemon.close()
+        if peer is not None:
+            peer.close()
+    assert old == [], f"{len(old)} readings older than {MAX_AGE_MS:g} ms after the resume, oldest {max(old):.0f} ms"
+    assert "answers no TIMESYNC request" in daemon.stderr()        # the operator is told why nothing goes out
+
+
 def test_the_autopilot_coming_back_on_tcp_is_reconnected_within_a_second(tmp_path):
     # item 2: the daemon as TCP client (SITL's TCP port); the reconnect back-off used to reach 10 s
     port = free_port(socket.SOCK_STREAM)
@@ -178,21 +218,55 @@ def _daemon_address(peer):
     return next(iter(peer.conn.clients))
 
 
+class StatusWatch:
+    """The daemon's status lines as they appear: (when this test saw it, readings made, lost)."""
+
+    PATTERN = re.compile(r"\((\d+) readings made, (\d+) lost")
+
+    def __init__(self, daemon):
+        self.daemon = daemon
+        self.seen: list[tuple[float, int, int]] = []
+        self._lines = 0
+
+    def poll(self) -> None:
+        lines = _status_lines(self.daemon)
+        now = time.monotonic()
+        for line in lines[self._lines:]:
+            m = self.PATTERN.search(line)
+            if m:
+                self.seen.append((now, int(m.group(1)), int(m.group(2))))
+        self._lines = len(lines)
+
+    def next_after(self, t: float, timeout_s: float = 30.0) -> tuple[float, int, int]:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            self.poll()
+            later = [s for s in self.seen if s[0] > t]
+            if later:
+                return later[0]
+            time.sleep(0.02)
+        raise AssertionError(f"no status line after {t:.1f}: {self.daemon.stderr()[-2000:]}")
+
+
 def test_inbound_floods_do_not_stall_the_stream_or_grow_memory(tmp_path, peer):
     # item 3: 20 KB random datagrams at 100/s gave a 2.0 s gap (ArduPilot drops the sensor after 0.5 s),
     # 65 KB zero datagrams 1.5 s; RSS grew 30 MB. The flood comes from the autopilot's own address, the
     # only one the daemon's connected udpout socket still hears.
+    # A loaded machine slows the stereo stage: fewer readings, longer gaps between them, whatever the link
+    # does (issue 44 item 11: a 0.693 s gap at load 12). So the test asks what a stalled link would
+    # change: readings made but never written (the daemon's own count, 'lost', read from the status lines
+    # before and after the flood), and readings older than their deadline by their own capture stamps.
     daemon = Daemon(tmp_path, f"udpout:127.0.0.1:{peer.port}")
+    status = StatusWatch(daemon)
     try:
         wait_for(lambda: len(peer.of("DISTANCE_SENSOR")) >= 10, 90, daemon, "10 readings")
-        t0 = time.monotonic()
-        time.sleep(2.0)
-        base_gap = max(gaps([t for t, _ in peer.timed("DISTANCE_SENSOR", since=t0)]))
+        status.next_after(time.monotonic())
         rss0 = daemon.rss_kb()
         target = _daemon_address(peer)
         sock = peer.conn.port
         rng = __import__("random").Random(13)
         t_flood = time.monotonic()
+        before = status.seen[-1]
         for junk in ([rng.randbytes(20_000) for _ in range(8)], [bytes(65_000)], [rng.randbytes(900) for _ in range(8)]):
             end = time.monotonic() + 2.0
             i = 0
@@ -201,13 +275,17 @@ def test_inbound_floods_do_not_stall_the_stream_or_grow_memory(tmp_path, peer):
                 i += 1
                 time.sleep(0.01 if len(junk[0]) > 1000 else 0.002)
         t_end = time.monotonic()
-        time.sleep(0.5)
+        after = status.next_after(t_end + 0.5)
         rss1 = daemon.rss_kb()
-        during = [t for t, _ in peer.timed("DISTANCE_SENSOR", since=t_flood) if t <= t_end + 0.5]
+        during = [(t, m) for t, m in peer.timed("DISTANCE_SENSOR", since=before[0]) if t <= after[0]]
     finally:
         daemon.close()
-    worst = max(gaps(during))
-    assert worst < max(0.5, 1.5 * base_gap), f"gap {worst:.3f} s under the flood (without: {base_gap:.3f} s)"
+    made, lost = after[1] - before[1], after[2] - before[2]
+    assert made >= 10, f"only {made} readings made in {after[0] - before[0]:.1f} s"   # the stereo stage ran
+    assert lost == 0, f"the link lost {lost} of the {made} readings made during the flood"
+    ages = [age_ms(t, m) for t, m in during]
+    # the peer got them (between the two lines as this test saw them: a reading either side may be cut)
+    assert len(during) >= made - 2 and max(ages) <= MAX_AGE_MS, (len(during), made, max(ages))
     assert rss1 - rss0 < 20_000, f"RSS grew {rss1 - rss0} kB"                  # goal 5 MB: bench/link_flood.py
 
 
@@ -252,3 +330,177 @@ def test_time_boot_ms_is_the_capture_time_strictly_increasing(tmp_path, peer):
     ages = sorted(age_ms(t, m) for t, m in ds)
     # capture to arrival: at least the stereo stage (several ms), never more than max_age_ms
     assert ages[0] >= 1 and ages[-1] <= MAX_AGE_MS, (ages[0], ages[-1])
+
+
+class Udp:
+    """A bare UDP endpoint on loopback: sends frames to the daemon's udpin port, collects what comes back."""
+
+    def __init__(self, port):
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.setblocking(False)
+        self.to = ("127.0.0.1", port)
+        self.parser = _parser()
+        self.got = []
+
+    def send(self, frame: bytes):
+        self.sock.sendto(frame, self.to)
+
+    def poll(self):
+        while self.sock.fileno() >= 0:     # closed: what it got
+            try:
+                data = self.sock.recv(65536)
+            except BlockingIOError:
+                break
+            self.got += [m for m in self.parser.parse_buffer(data) or () if m.get_type() != "BAD_DATA"]
+        return self.got
+
+    def of(self, mtype):
+        return [m for m in self.poll() if m.get_type() == mtype]
+
+    def close(self):
+        self.sock.close()
+
+
+def _parser(key: bytes | None = None, sysid: int = 1, compid: int = 1):
+    from uav_depth.daemon.link.vocabulary import mavutil
+
+    mav = mavutil().mavlink.MAVLink(None, sysid, compid)
+    mav.robust_parsing = True
+    if key is not None:
+        mav.signing.secret_key = key
+        mav.signing.sign_outgoing = True
+        mav.signing.timestamp = int((time.time() - 1420070400) * 100_000)
+    return mav
+
+
+def _heartbeat(mav) -> bytes:
+    """An ArduPilot quadrotor's HEARTBEAT from ``mav`` (signed if it has a key): a fresh frame each call."""
+    buf = mav.heartbeat_encode(2, 3, 0, 0, 4).pack(mav)
+    mav.seq = (mav.seq + 1) % 256
+    return buf
+
+
+def _serve(port, frames, seconds, *peers):
+    """Send ``frames()`` from the first peer every 0.1 s for ``seconds``, polling every peer."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        if frames is not None:
+            peers[0].send(frames())
+        for p in peers:
+            p.poll()
+        time.sleep(0.1)
+
+
+def test_udpin_is_not_taken_over_by_a_heartbeat_after_the_autopilot_falls_silent(tmp_path):
+    # issue 44 item 5: after 3 s of autopilot silence any autopilot HEARTBEAT took the stream over
+    # (140 readings to a stranger)
+    port = free_port()
+    daemon = Daemon(tmp_path, f"udpin:127.0.0.1:{port}")
+    autopilot, stranger = Udp(port), Udp(port)
+    mav = _parser()
+    try:
+        wait_for(lambda: "ready:" in daemon.stderr(), 90, daemon, "start-up")
+        wait_for(lambda: (autopilot.send(_heartbeat(mav)), len(autopilot.of("DISTANCE_SENSOR")) >= 5)[1], 30,
+                 daemon, "the autopilot's readings")
+        time.sleep(3.5)                                    # the autopilot is silent
+        _serve(port, lambda: _heartbeat(_parser()), 3.0, stranger, autopilot)    # a stranger says "autopilot"
+        n = len(autopilot.of("DISTANCE_SENSOR"))
+        _serve(port, lambda: _heartbeat(mav), 1.5, autopilot)                    # the autopilot is back
+    finally:
+        daemon.close()
+        autopilot.close()
+        stranger.close()
+    assert stranger.got == [], f"the stranger got {len(stranger.got)} messages"
+    assert len(autopilot.of("DISTANCE_SENSOR")) > n                              # still the owner's
+
+
+def test_with_signing_a_replayed_heartbeat_takes_nothing_and_a_signed_new_one_rebinds(tmp_path):
+    # issue 44 item 5: with signing on, each candidate was checked by a fresh parser with no memory of the
+    # timestamps seen, so a replayed signed HEARTBEAT from a sender without the key got 55 readings
+    key_file = tmp_path / "mavlink.key"
+    key_file.write_text("correct horse battery staple\n")
+    key_file.chmod(0o600)
+    from uav_depth.daemon.link.signing import load_signing_key
+
+    key = load_signing_key(key_file)
+    port = free_port()
+    daemon = Daemon(tmp_path, f"udpin:127.0.0.1:{port}", mavlink={"signing_key_file": str(key_file)})
+    autopilot, attacker, moved = Udp(port), Udp(port), Udp(port)
+    mav = _parser(key)
+    captured = []
+    try:
+        wait_for(lambda: "ready:" in daemon.stderr(), 90, daemon, "start-up")
+        wait_for(lambda: (captured.append(_heartbeat(mav)), autopilot.send(captured[-1]),
+                          len(autopilot.of("DISTANCE_SENSOR")) >= 5)[2], 30, daemon, "the autopilot's readings")
+        time.sleep(3.5)                                    # the autopilot is silent
+        replays = iter(captured * 10)                      # every frame it sent, sent again by someone else
+        _serve(port, lambda: next(replays), 3.0, attacker)
+        _serve(port, lambda: _heartbeat(mav), 3.0, moved)   # the autopilot itself, with the key, on a new port
+    finally:
+        daemon.close()
+        for p in (autopilot, attacker, moved):
+            p.close()
+    assert attacker.got == [], f"the replaying sender got {len(attacker.got)} messages"
+    assert moved.of("DISTANCE_SENSOR"), daemon.stderr()[-2000:]                 # a signed HEARTBEAT re-binds
+    assert "owns the stream now" in daemon.stderr()
+
+
+def test_a_flood_of_wrongly_signed_datagrams_is_a_few_log_lines(tmp_path):
+    # issue 44 item 5: before binding, each wrong-key datagram logged 2 lines: 5641 lines in 3 s
+    key_file = tmp_path / "mavlink.key"
+    key_file.write_text("correct horse battery staple\n")
+    key_file.chmod(0o600)
+    port = free_port()
+    daemon = Daemon(tmp_path, f"udpin:127.0.0.1:{port}", mavlink={"signing_key_file": str(key_file)})
+    flooder = Udp(port)
+    wrong = _parser(b"\x01" * 32)
+    try:
+        wait_for(lambda: "ready:" in daemon.stderr(), 90, daemon, "start-up")
+        time.sleep(1.0)
+        before = daemon.stderr().count("\n")
+        sent, end = 0, time.monotonic() + 3.0
+        while time.monotonic() < end:
+            for _ in range(50):
+                flooder.send(_heartbeat(wrong))
+            sent += 50
+            time.sleep(0.005)
+        time.sleep(1.0)
+        lines = daemon.stderr().count("\n") - before
+        flood_lines = [line for line in daemon.stderr().splitlines()[before:] if "status:" not in line]
+    finally:
+        daemon.close()
+        flooder.close()
+    assert len(flood_lines) <= 5, f"{lines} lines for {sent} datagrams: {flood_lines[:8]}"
+    assert flooder.got == []
+
+
+def _status_lines(daemon):
+    return [line.split("status: ", 1)[1] for line in daemon.stderr().splitlines() if "status: " in line]
+
+
+def test_the_status_line_counts_what_reached_an_autopilot_and_says_when_none_is_heard(tmp_path):
+    # issue 47 item 3: with nobody listening, "sent 151/151 valid": queued messages counted as sent
+    port = free_port()
+    url = f"udpin:127.0.0.1:{port}"
+    daemon = Daemon(tmp_path, url)
+    try:
+        wait_for(lambda: len(_status_lines(daemon)) >= 3, 90, daemon, "3 status lines")
+        lonely = _status_lines(daemon)[-1]
+        autopilot = Receiver(f"udpout:127.0.0.1:{port}", sysid=1, compid=1, autopilot=True)
+        try:
+            wait_for(lambda: len(autopilot.of("DISTANCE_SENSOR")) >= 10, 60, daemon, "10 readings")
+            n_seen = len(autopilot.of("DISTANCE_SENSOR"))
+            t = time.monotonic()
+            wait_for(lambda: any("to autopilot" in s for s in _status_lines(daemon)[-1:])
+                     and time.monotonic() - t > 1.5, 30, daemon, "a status line with the autopilot")
+            heard = _status_lines(daemon)[-1]
+        finally:
+            autopilot.close()
+    finally:
+        daemon.close()
+    assert re.search(f"NO AUTOPILOT HEARD on {url}: 0 of [0-9]+ readings delivered", lonely), lonely
+    sent = re.search(r"sent (\d+)/(\d+) valid to autopilot 1/1 \((\d+) readings made, \d+ lost\)", heard)
+    assert sent, heard
+    valid, delivered, made = map(int, sent.groups())
+    assert 0 < valid <= delivered <= made and delivered >= n_seen - 2, (heard, n_seen)

@@ -19,7 +19,8 @@ from uav_depth.core.errors import ConfigError
 from uav_depth.core.params import DEFAULT_PARAMS, save_params
 from uav_depth.daemon.config import run_config_from_dict
 from uav_depth.daemon.liveview import LiveView, LiveViewConfig, Offer, colourise, render, wire_fields
-from uav_depth.daemon.ranging import Estimate, Measurement, RangeLimits
+from uav_depth.core.ranging import Measurement, RangeLimits
+from uav_depth.daemon.estimate import Estimate
 
 from mavlink_peer import free_port
 
@@ -88,7 +89,7 @@ def test_state_carries_the_frame_and_the_wire():
 
 
 def test_wire_fields_follow_the_send_clock_report():
-    from uav_depth.daemon.mavlink_out import distance_report
+    from uav_depth.daemon.link.contract import distance_report
 
     est = _estimate(t_capture=10.0)
     sent = wire_fields(distance_report(est, est.limits, 10.1, 0.5, 0.0))

@@ -17,7 +17,7 @@ from uav_depth.core.errors import ConfigError
 from uav_depth.core.params import DEFAULT_PARAMS, save_params
 from uav_depth.core.session import SessionWriter
 from uav_depth.daemon.config import run_config_from_dict
-from uav_depth.daemon.mavlink_enums import mavutil
+from uav_depth.daemon.link.vocabulary import mavutil
 from uav_depth.daemon.obstacles import (N_SECTORS, UINT16_UNKNOWN, Field, ObstacleConfig, ObstacleSender, bins_cm,
                                         encoder, limits_cm, sector_ranges)
 

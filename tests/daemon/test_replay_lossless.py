@@ -40,7 +40,7 @@ def test_lossless_replay_processes_every_frame(rx, tmp_path, caplog):
     with caplog.at_level(logging.INFO, logger="uav_depth.service"):
         report = svc.run(threading.Event())
     assert report.clean and svc.ended
-    assert svc.stats.frames == N and svc._mailbox.dropped == 0
+    assert svc.stats.frames == N and svc.mailbox.dropped == 0
     assert any(f"delivered {N} frames: {N} processed, 0 dropped" in r.message for r in caplog.records)
 
 
@@ -49,7 +49,7 @@ def test_paced_replay_says_what_it_dropped(rx, tmp_path, caplog):
     svc = service(rx, tmp_path)
     with caplog.at_level(logging.INFO, logger="uav_depth.service"):
         svc.run(threading.Event())
-    dropped = svc._mailbox.dropped
+    dropped = svc.mailbox.dropped
     assert dropped >= 1 and svc.frames_done + dropped == N
     line = next(r.message for r in caplog.records if f"delivered {N} frames" in r.message)
     assert f"{dropped} dropped" in line and "source.lossless: true" in line

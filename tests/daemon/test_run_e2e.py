@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 import yaml
 
-from uav_depth.cli.main import EXIT_CONFIG, EXIT_UNAVAILABLE
+from uav_depth.cli.exit_codes import EXIT_CONFIG, EXIT_UNAVAILABLE
 from uav_depth.core.fileio import atomic_write_text
 from uav_depth.core.params import DEFAULT_PARAMS, save_params
 from uav_depth.sim.scene import Pose, Scene, SceneConfig

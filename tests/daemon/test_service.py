@@ -250,3 +250,85 @@ def test_a_replay_of_a_logged_session_runs_to_its_end(rx, tmp_path, params_file)
 def test_a_pose_provider_needs_the_synthetic_source(rx):
     with pytest.raises(ConfigError, match="source.kind must be synthetic when a pose provider drives the rig"):
         Service(config(rx, source={"kind": "uvc"}), pose_provider=lambda t: Pose())
+
+
+def test_the_outlier_gate_is_touched_by_the_stereo_thread_only(rx, params_file, monkeypatch):
+    # A camera loss resets the gate; the capture thread sees the loss, the stereo thread uses the gate.
+    from uav_depth.core.ranging import OutlierGate
+
+    callers = set()
+    for name in ("reset", "accept", "near", "too_close"):
+        real = getattr(OutlierGate, name)
+
+        def spy(self, *a, _real=real, **kw):
+            callers.add(threading.current_thread().name)
+            return _real(self, *a, **kw)
+        monkeypatch.setattr(OutlierGate, name, spy)
+    lost = threading.Event()
+
+    def pose(t):
+        if lost.is_set():
+            raise SourceError("synthetic: camera unplugged (test)")
+        return Pose.forward(0.0)
+
+    svc = Service(config(rx, params_file=str(params_file)), pose_provider=pose)
+    with Running(svc):
+        assert rx.wait(lambda: svc.stats.frames >= 2, PATIENCE_S)
+        lost.set()
+        assert rx.wait(lambda: "uav-depth: camera lost" in rx.texts(), PATIENCE_S)
+        lost.clear()
+        assert rx.wait(lambda: "uav-depth: camera back" in rx.texts(), PATIENCE_S)
+        frames = svc.stats.frames
+        assert rx.wait(lambda: svc.stats.frames >= frames + 2, PATIENCE_S)
+    assert callers == {"stereo"}
+
+
+def test_nothing_is_sent_after_shutdown_began(rx, params_file):
+    # The send clock is inside a send when the stop comes (held there by this link until "stopping" is
+    # queued, or 0.3 s at most): that reading, and every other, must be on the wire before "stopping".
+    from uav_depth.daemon.link.endpoint import MavlinkLink
+
+    in_send, release = threading.Event(), threading.Event()
+
+    class HeldLink(MavlinkLink):
+        def distance_sensor(self, *args, **kwargs):
+            if not in_send.is_set() and rx.of("DISTANCE_SENSOR"):
+                in_send.set()
+                release.wait(10)
+            return super().distance_sensor(*args, **kwargs)
+
+        def statustext(self, text, severity="info"):
+            sent = super().statustext(text, severity)
+            if text == "uav-depth: stopping":
+                release.set()
+            return sent
+
+    cfg = config(rx, params_file=str(params_file))
+    svc = Service(cfg, link=HeldLink(cfg.mavlink, 0.05, 0.1))
+    stop = threading.Event()
+    runner = threading.Thread(target=svc.run, args=(stop,), daemon=True)
+    runner.start()
+    assert in_send.wait(PATIENCE_S), "no reading was sent"
+    stop.set()
+    threading.Timer(0.3, release.set).start()
+    runner.join(30)
+    assert rx.wait(lambda: "uav-depth: stopping" in rx.texts(), 10)
+    time.sleep(0.3)                               # anything still in flight on loopback
+    t_stopping = next(t for t, m in rx.msgs if m.get_type() == "STATUSTEXT" and m.text == "uav-depth: stopping")
+    after = [m.get_type() for t, m in rx.msgs if t > t_stopping and m.get_type() != "HEARTBEAT"]
+    assert after == [], after
+    assert [m.system_status for t, m in rx.msgs if m.get_type() == "HEARTBEAT" and t >= t_stopping] == [7]  # POWEROFF
+
+
+def test_what_the_source_counts_is_in_the_status_line(rx, params_file):
+    # A two-camera UVC rig counts the pairs it dropped as out of sync (daemon/sources/uvc.py); the
+    # status line carries whatever the source says there.
+    from uav_depth.daemon.sources import create_source
+
+    cfg = config(rx, params_file=str(params_file))
+    source = create_source(cfg.source)
+    source.notes = ("3 stereo pairs dropped (eyes captured more than half a frame apart)",)
+    svc = Service(cfg, source=source)
+    with Running(svc):
+        assert rx.wait(lambda: svc.stats.frames >= 1, PATIENCE_S)
+        assert svc.status_line().endswith(", 3 stereo pairs dropped (eyes captured more than half a frame apart)")

@@ -1,5 +1,6 @@
 """Frame sources: the table, synthetic truth and caching, replay pacing, hardware that is not there."""
 
+import os
 import subprocess
 import sys
 import time
@@ -13,7 +14,7 @@ from uav_depth.core.rectify import Rectifier
 from uav_depth.sim.scene import Pose, SceneConfig, write_session
 from uav_depth.cli.sources import SOURCES
 from uav_depth.daemon.sources import EndOfStream, create_source
-from uav_depth.daemon.sources.base import device_capture_time
+from uav_depth.core.frames import device_capture_time
 from uav_depth.sim.source import SyntheticSource
 from uav_depth.daemon.sources.uvc import read_zed_conf, split_side_by_side
 
@@ -218,6 +219,17 @@ def test_zed_calibration_file(tmp_path):
         read_zed_conf(path, 672, 376)
 
 
+def test_a_zed_calibration_file_is_read_within_a_bound(tmp_path):
+    big = tmp_path / "SN1.conf"
+    big.write_text(ZED_CONF + "; padding\n" * 7000)
+    with pytest.raises(CalibrationError, match=r"SN1\.conf: ZED calibration file is \d+ bytes, more than the 64 KiB"):
+        read_zed_conf(big, 1280, 720)
+    fifo = tmp_path / "SN2.conf"
+    os.mkfifo(fifo)
+    with pytest.raises(CalibrationError, match=r"SN2\.conf: ZED calibration file is not a regular file"):
+        read_zed_conf(fifo, 1280, 720)
+
+
 def test_device_capture_time_takes_the_earliest_plausible_device_stamp():
     assert device_capture_time([99.95, 99.97], now=100.0) == 99.95        # the older eye: ages never understated
     assert device_capture_time([None, 99.9], now=100.0) == 99.9
@@ -259,6 +271,19 @@ def test_uvc_frames_carry_the_v4l2_buffer_timestamp():
     src._caps = [FakeCapture(0.0, img), FakeCapture(0.0, img)]              # a driver without timestamps
     before = time.monotonic()
     assert before <= src.read(0.1).t_capture <= time.monotonic()
+
+
+def test_a_two_camera_pair_captured_more_than_half_a_frame_apart_is_dropped_and_counted():
+    src = create_source(source_config(kind="uvc", device="/dev/video97", right_device="/dev/video96",
+                                      width=16, height=16, fps=30.0))
+    img = np.zeros((16, 16), np.uint8)
+    t = time.monotonic()
+    src._caps = [FakeCapture((t - 0.040) * 1000.0, img), FakeCapture((t - 0.020) * 1000.0, img)]   # 20 ms > 16.7
+    assert src.read(0.1) is None and src.out_of_sync == 1
+    assert src.notes == ("1 stereo pair dropped (eyes captured more than half a frame apart)",)
+    src._caps = [FakeCapture((t - 0.040) * 1000.0, img), FakeCapture((t - 0.025) * 1000.0, img)]   # 15 ms: kept
+    assert src.read(0.1).t_capture == pytest.approx(t - 0.040, abs=1e-6)
+    assert src.out_of_sync == 1
 
 
 class FakeImgFrame:

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from uav_depth.cli.main import EXIT_CONFIG
+from uav_depth.cli.exit_codes import EXIT_CONFIG
 
 REPO = Path(__file__).resolve().parents[2]
 DEPLOY = REPO / "deploy"
@@ -83,8 +83,11 @@ def snapshot(root: Path, skip_venv_lib: bool = False) -> dict[str, tuple]:
 
 
 def clone(root: Path, dest: Path) -> Path:
-    """A copy of an installed root that keeps ownership (shutil.copytree does not)."""
+    """A copy of an installed root that keeps ownership (shutil.copytree does not), with the /usr/bin/env
+    every image has (the unit's ExecStart starts through it)."""
     subprocess.run(["cp", "-a", f"{root}/.", str(dest)], check=True, timeout=120)
+    (dest / "usr" / "bin").mkdir(parents=True, exist_ok=True)
+    shutil.copy2("/usr/bin/env", dest / "usr" / "bin" / "env")
     return dest
 
 
@@ -127,16 +130,21 @@ def test_unit_passes_systemd_analyze_verify_as_installed(installed, tmp_path):
                           capture_output=True, text=True, timeout=60)
     # Unknown keys and bad values are only warnings for systemd: any output fails the test.
     assert proc.returncode == 0 and proc.stdout.strip() == "" and proc.stderr.strip() == "", proc.stderr
+    # ExecStart starts through env (the signals held until the handlers are in): verify checks env; the
+    # daemon it runs is checked here.
+    words = unit_settings(work / "etc/systemd/system/uav-depth.service")["ExecStart"][0].split()
+    daemon = work / next(w for w in words if not w.startswith("-") and w != "/usr/bin/env").lstrip("/")
+    assert daemon == work / "opt/uav-depth/venv/bin/uav-depth" and os.access(daemon, os.X_OK)
 
 
 def test_verify_would_catch_a_broken_unit(installed, tmp_path):
     root, _ = installed
     work = clone(root, tmp_path)
     shutil.copytree("/usr/lib/systemd/system", work / "usr/lib/systemd/system", symlinks=True)
-    (work / "opt/uav-depth/venv/bin/uav-depth").unlink()
+    (work / "usr/bin/env").unlink()
     proc = subprocess.run(["systemd-analyze", "verify", f"--root={work}", "uav-depth.service"],
                           capture_output=True, text=True, timeout=60)
-    assert proc.returncode != 0 and "/opt/uav-depth/venv/bin/uav-depth is not executable" in proc.stderr
+    assert proc.returncode != 0 and "/usr/bin/env is not executable" in proc.stderr
 
 
 def test_unit_exposure_score(capsys):
@@ -157,7 +165,8 @@ def test_unit_lifecycle_settings_match_the_daemon_and_installer():
     assert s["Restart"] == ["on-failure"]
     # One definition: the exit code the CLI uses for a bad config is the one that stops restarts.
     assert s["RestartPreventExitStatus"] == [str(EXIT_CONFIG)]
-    assert s["ExecStart"] == [f"{VENV}/bin/uav-depth run --config /etc/uav-depth/config.yaml"]
+    assert s["ExecStart"] == [f"/usr/bin/env --block-signal=HUP,INT,TERM,USR1 {VENV}/bin/uav-depth run "
+                              "--config /etc/uav-depth/config.yaml"]
     assert s["User"] == ["uav-depth"] and s["SupplementaryGroups"] == ["video dialout"]
     sysusers = (DEPLOY / "uav-depth.sysusers").read_text()
     assert re.search(r"^m uav-depth video$", sysusers, re.M) and re.search(r"^m uav-depth dialout$", sysusers, re.M)

@@ -7,9 +7,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from uav_depth.cli.benchmark import flight_params
+from uav_depth.core.params.flight import flight_params
 from uav_depth.core.disparity import flight_pipeline
-from uav_depth.daemon.ranging import RangingConfig, Ranger, default_roi
+from uav_depth.core.ranging import RangingConfig, Ranger, default_roi
 from uav_depth.sim.scene import Pose, Scene, SceneConfig
 from uav_depth.sim.sitl import rot_x, rot_y
 from uav_depth.sim.source import Config, SyntheticSource, pipeline_reads

@@ -3,7 +3,8 @@
 import cv2
 import numpy as np
 
-from uav_depth.cli.main import EXIT_ERROR, main
+from uav_depth.cli.exit_codes import EXIT_ERROR
+from uav_depth.cli.main import main
 from uav_depth.core.calibration import Calibration
 from uav_depth.core.session import SessionWriter
 

@@ -138,7 +138,7 @@ def test_flown_fitness_scores_the_map_over_the_matched_region_and_the_branch_in_
     import dataclasses
 
     from uav_depth.core.disparity import flight_pipeline
-    from uav_depth.daemon.ranging import resolve_roi
+    from uav_depth.core.ranging import resolve_roi
     from uav_depth.tuning import metrics
     from uav_depth.tuning.objective import BRANCH_PX_PER_PCT, bench, branch_reading, flown_map
 
@@ -247,7 +247,7 @@ def test_a_candidate_with_a_region_is_scored_inside_it(tiny_frames, metric):
 def test_the_flown_fitness_ranges_with_the_ranging_settings_it_is_given(tiny_frames):
     """The flown fitness scores the pixels the ranging uses and the distance it sends: both follow the ranging
     settings of the config that will fly, and so does the cache key of every evaluation."""
-    from uav_depth.daemon.ranging import RangingConfig
+    from uav_depth.core.ranging import RangingConfig
     from uav_depth.tuning.objective import Objective, Task
 
     strict = RangingConfig(min_confidence=0.95)

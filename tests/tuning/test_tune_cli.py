@@ -11,7 +11,7 @@ import optuna
 import pytest
 import yaml
 
-from uav_depth.cli.main import EXIT_CONFIG
+from uav_depth.cli.exit_codes import EXIT_CONFIG
 from uav_depth.core.params import load_params, read_provenance
 from uav_depth.tuning.store import STUDY_NAME, RunStore, storage_url
 

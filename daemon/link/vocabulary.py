@@ -1,6 +1,6 @@
-"""MAVLink vocabulary: pymavlink with the MAVLink 2 dialect, and the enum values the daemon sends.
+"""MAVLink vocabulary: pymavlink with the MAVLink 2 dialect, the enum values the daemon sends, the cm rules.
 
-Kept apart from the link (:mod:`.mavlink_out`) so that the config loader can
+Kept apart from the link (:mod:`.endpoint`) so that the config loader can
 validate an orientation without importing the link that is built from it.
 """
 
@@ -17,11 +17,16 @@ SEVERITY = {"emergency": 0, "alert": 1, "critical": 2, "error": 3, "warning": 4,
             "debug": 7}
 MAV_TYPE_ONBOARD_CONTROLLER = 18
 MAV_AUTOPILOT_INVALID = 8
+#: HEARTBEAT.autopilot of the two flight stacks whose settings the daemon checks.
+MAV_AUTOPILOT_ARDUPILOTMEGA = 3
+MAV_AUTOPILOT_PX4 = 12
 MAV_STATE = {"boot": 1, "standby": 3, "active": 4, "critical": 5, "poweroff": 7}
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 UINT8_UNKNOWN = 255
 STATUSTEXT_LEN = 50
 HEARTBEAT_PERIOD_S = 1.0
+#: time_boot_ms is a uint32 of ms: it wraps after 49.7 days.
+BOOT_MS_MOD = 1 << 32
 
 
 def mavutil() -> Any:

@@ -1,6 +1,5 @@
-"""MAVLink output against real pymavlink endpoints on loopback: fields, clock, subscriptions, signing, reconnects."""
+"""The link against real pymavlink endpoints on loopback: fields, clock, subscriptions, signing, reconnects."""
 
-import math
 import os
 import socket
 import threading
@@ -10,11 +9,13 @@ import pytest
 
 from uav_depth.daemon.config import MavlinkConfig
 from uav_depth.core.errors import ConfigError
-from uav_depth.daemon.mavlink_out import (MavlinkLink, SendClock, distance_report, load_signing_key,
-                                          orientation_code)
-from uav_depth.daemon.mavlink_enums import mavutil
-from uav_depth.daemon.ranging import Estimate, Measurement, RangeLimits
+from uav_depth.daemon.link.clock import SendClock
+from uav_depth.daemon.link.endpoint import MavlinkLink
+from uav_depth.daemon.link.signing import load_signing_key
+from uav_depth.daemon.link.vocabulary import mavutil
+from uav_depth.core.ranging import Measurement, RangeLimits
 
+from uav_depth.daemon.estimate import Estimate
 from mavlink_peer import Receiver, free_port
 
 LIMITS = RangeLimits(min_distance_m=0.345, max_distance_m=10.0, hfov_rad=0.6, vfov_rad=0.35)
@@ -23,81 +24,6 @@ LIMITS = RangeLimits(min_distance_m=0.345, max_distance_m=10.0, hfov_rad=0.6, vf
 def estimate(distance=1.234, sigma=0.01, quality=80, t_capture=10.0, limits=LIMITS):
     m = Measurement(distance, sigma, quality) if distance is not None else Measurement(None, reason="none")
     return Estimate(m, limits, t_capture, t_capture + 0.05, 7, "abc")
-
-
-def test_fresh_estimate_fields():
-    r = distance_report(estimate(), LIMITS, now=10.25, max_age_s=0.3, t_start=9.0)
-    assert r.condition == "measuring" and r.sent and r.valid
-    assert r.current_distance == 123 and (r.min_distance, r.max_distance) == (33, 1000)   # min 0.345 m: 34 - 1
-    assert r.covariance == 1 and r.signal_quality == 80 and r.age_ms == 250
-    assert r.time_boot_ms == 1000                               # the capture time, not the send time
-    assert (r.horizontal_fov, r.vertical_fov) == (0.6, 0.35)
-    r = distance_report(estimate(sigma=0.05), LIMITS, now=10.1, max_age_s=0.3, t_start=9.0)
-    assert r.covariance == 25                                   # (5 cm)^2
-
-
-def test_a_reading_at_the_minimum_goes_out_strictly_above_min_distance():
-    # issue 13 item 1: min 0.2749 m was rounded up to 28 cm and the reading to nearest (27): sent as max + 1
-    lim = RangeLimits(min_distance_m=0.2749, max_distance_m=10.0, hfov_rad=0.6, vfov_rad=0.35)
-    r = distance_report(estimate(0.2749, limits=lim), lim, 10.0, 0.3)
-    assert r.condition == "measuring" and r.current_distance == 27
-    assert r.min_distance < r.current_distance <= r.max_distance   # PX4 needs current > min
-
-
-@pytest.mark.parametrize("d,cm", [(1.2399, 123), (0.29, 29), (0.999999, 99), (2.0, 200), (0.345, 34)])
-def test_readings_are_rounded_down_never_farther(d, cm):
-    lim = RangeLimits(min_distance_m=0.2, max_distance_m=10.0, hfov_rad=0.6, vfov_rad=0.35)
-    if d == 0.345:
-        lim = LIMITS
-    assert distance_report(estimate(d, limits=lim), lim, 10.0, 0.3).current_distance == cm
-
-
-def test_too_close_is_the_nearest_value_both_autopilots_take_as_an_obstacle():
-    est = Estimate(Measurement(None, reason="too close"), LIMITS, 10.0, 10.05, 7, "abc", too_close=True)
-    r = distance_report(est, LIMITS, 10.1, 0.3)
-    assert r.condition == "too close" and r.sent and not r.valid
-    assert r.current_distance == r.min_distance + 1 == 34        # > min (PX4), within min..max (ArduPilot)
-    assert r.current_distance <= 100 * LIMITS.min_distance_m     # never farther than the minimum range
-    assert r.covariance == 255 and r.signal_quality != 1
-    # a reading below the wire's minimum is too close too, never dropped to "clear"
-    r = distance_report(estimate(0.30), LIMITS, 10.0, 0.3)
-    assert r.condition == "too close" and r.current_distance == 34
-
-
-@pytest.mark.parametrize("case,condition", [
-    ("stale", "stale"), ("none", "starting"), ("no-measurement", "nothing confident"),
-    ("out-of-range", "nothing confident"), ("camera lost", "camera lost"),
-    ("parameters unusable", "parameters unusable"), ("shutting down", "shutting down")])
-def test_blind_sends_nothing(case, condition):
-    est = {"stale": estimate(t_capture=9.0), "none": None, "no-measurement": estimate(distance=None),
-           "out-of-range": estimate(distance=20.0)}.get(case, estimate())
-    blind = case if case in ("camera lost", "parameters unusable", "shutting down") else None
-    r = distance_report(est, LIMITS, now=10.0, max_age_s=0.3, blind=blind)
-    assert r.condition == condition and not r.sent and r.current_distance is None
-
-
-def test_signal_quality_is_never_1():
-    assert distance_report(estimate(quality=1), LIMITS, 10.0, 0.3).signal_quality == 2
-    assert distance_report(estimate(quality=100), LIMITS, 10.0, 0.3).signal_quality == 100
-
-
-def test_covariance_is_never_zero_and_never_smaller_than_the_sigma():
-    tiny = distance_report(estimate(sigma=1e-5), LIMITS, 10.0, 0.3, 0.0)
-    assert tiny.covariance == 1
-    # 254 cm^2 is the largest the uint8 field carries (15.9 cm); beyond, "unknown" (255), never a
-    # clipped 254 that would tell the autopilot the reading is more precise than it is.
-    at_cap = distance_report(estimate(sigma=math.sqrt(254) / 100), LIMITS, 10.0, 0.3, 0.0)
-    over = distance_report(estimate(sigma=0.16), LIMITS, 10.0, 0.3, 0.0)
-    huge = distance_report(estimate(sigma=1.0), LIMITS, 10.0, 0.3, 0.0)
-    assert at_cap.covariance == 254 and over.covariance == 255 and huge.covariance == 255
-    assert over.valid and over.current_distance is not None    # the distance itself is what was measured
-
-
-def test_orientation_code_rejects_nonsense():
-    with pytest.raises(ValueError):
-        orientation_code("sideways")
-    with pytest.raises(ValueError):
-        orientation_code(100)
 
 
 class Publisher:
@@ -232,6 +158,15 @@ def test_signing_key_file_permissions_and_signed_messages(tmp_path):
     key_file.chmod(0o600)
     key = load_signing_key(key_file)
     assert len(key) == 32
+    big = tmp_path / "big.key"
+    big.write_bytes(b"x" * 5000)
+    big.chmod(0o600)
+    with pytest.raises(ConfigError, match=r"must be a regular file of at most 4096 bytes, but got '.*big\.key \(5000 bytes\)'"):
+        load_signing_key(big)
+    fifo = tmp_path / "fifo.key"
+    os.mkfifo(fifo, 0o600)              # reading it would wait for a writer
+    with pytest.raises(ConfigError, match=r"must be a regular file of at most 4096 bytes"):
+        load_signing_key(fifo)
     hex_file = tmp_path / "hex.key"
     hex_file.write_text(key.hex())
     hex_file.chmod(0o600)
@@ -260,7 +195,7 @@ def test_tcp_link_without_peer_never_blocks_and_reconnects():
     try:
         start = time.monotonic()
         assert not link.send(lambda mav: mav.heartbeat_encode(18, 8, 0, 0, 4))   # nobody there: dropped
-        assert time.monotonic() - start < 0.1 and link.dropped == 1
+        assert time.monotonic() - start < 0.1 and link.count.dropped == 1
         server = Receiver(f"tcpin:127.0.0.1:{port}", sysid=255, compid=190)
         assert link.wait_connected(5)
         deadline = time.monotonic() + 5
@@ -294,7 +229,7 @@ def test_udpout_is_bound_to_loopback_and_hears_only_the_autopilot():
     stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
         assert link.wait_connected(2)
-        local = link._t.local
+        local = link._pump.t.local
         assert local[0] == "127.0.0.1"                              # never 0.0.0.0
         link.heartbeat()
         assert peer.wait(lambda: got, 5)                            # the autopilot is heard
@@ -336,38 +271,162 @@ def test_serial_link_through_a_pseudo_terminal():
         os.close(slave)
 
 
-def test_bytes_the_kernel_holds_past_their_deadline_are_discarded_with_a_reset():
-    # a TCP peer whose window is closed (tiny receive buffer, never reads, never answers TIMESYNC):
-    # what waits in our kernel would arrive old, so the connection is reset instead
-    port = free_port(socket.SOCK_STREAM)
-    cfg = MavlinkConfig(url=f"tcpin:127.0.0.1:{port}", rate_hz=200)
-    link = MavlinkLink(cfg).start()
-    pub = Publisher(period_s=0.005)
-    clock = SendClock(link, cfg, 0.2, estimate=lambda: pub.est, limits=lambda: LIMITS, state=lambda: "active").start()
+def _stalled_tcp_pair(port):
+    """A TcpServer whose one peer has a tiny receive buffer and does not read (yet)."""
+    from uav_depth.daemon.link.streams import TcpServer
+
+    server = TcpServer("127.0.0.1", port)
     peer = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     peer.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1024)
+    peer.connect(("127.0.0.1", port))
+    deadline = time.monotonic() + 5
+    while server.conn is None and time.monotonic() < deadline:
+        server.poll()
+        time.sleep(0.01)
+    assert server.conn is not None
+    return server, peer
+
+
+def _drain(peer, timeout_s=0.5) -> bytes:
+    peer.settimeout(timeout_s)
+    got = b""
     try:
-        assert link.wait_connected(2)
-        peer.connect(("127.0.0.1", port))
-        deadline = time.monotonic() + 20
-        while link.discards == 0 and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert link.discards >= 1
+        while chunk := peer.recv(65536):
+            got += chunk
+    except (socket.timeout, BlockingIOError):
+        pass
+    return got
+
+
+def test_bytes_the_kernel_holds_past_their_deadline_are_discarded_with_a_reset():
+    # a TCP peer whose window is closed: what waits in our kernel would arrive old, so the connection is
+    # reset instead (the link then reconnects)
+    server, peer = _stalled_tcp_pair(free_port(socket.SOCK_STREAM))
+    try:
+        now = time.monotonic()
+        deadline = now + 0.2
+        while server.write(b"\xfd" + bytes(199), deadline, now):      # until the kernel holds no more
+            pass
+        assert not server.overdue(now)
+        assert server.overdue(deadline + 0.01)
+        server.discard()
         peer.settimeout(2)
         with pytest.raises(ConnectionResetError):       # after what its buffer held: the reset
             while peer.recv(65536):
                 pass
     finally:
+        server.close()
+        peer.close()
+
+
+def test_the_tail_of_a_frame_is_never_written_past_its_deadline():
+    # issue 44 item 4: a frame the kernel took only in part had its tail written whenever the stream took
+    # bytes again, however old the frame was by then: the peer got a whole old reading
+    server, peer = _stalled_tcp_pair(free_port(socket.SOCK_STREAM))
+    frame = b"\xfd" + bytes(998) + b"\x01"                           # one frame, 1000 bytes
+    try:
+        now = time.monotonic()
+        deadline = now + 0.2
+        for _ in range(10_000):                                      # until the kernel takes a frame in part
+            assert server.write(frame, deadline, now), "the kernel filled up exactly at a frame's end; rerun"
+            if server.tail_expired(deadline + 1):
+                break
+        got = _drain(peer)                                           # the peer reads again: room in the pipe
+        late = deadline + 0.01
+        assert not server.write(b"\xfd" + bytes(99), late + 1, late)  # the old frame's tail is not finished
+        assert server.overdue(late)                                  # so the link discards the stream
+        got += _drain(peer)
+        assert len(got) % len(frame) != 0                            # the old frame arrived cut, never whole
+    finally:
+        server.close()
+        peer.close()
+
+
+def test_a_message_whose_builder_raises_is_dropped_and_the_link_goes_on():
+    # issue 44 item 3: builders run on the I/O thread, which caught only ConnectionError/OSError: one bad
+    # builder ended the thread, and every later message was queued for nobody
+    port = free_port()
+    peer = Receiver(f"udpin:127.0.0.1:{port}", sysid=255, compid=190)
+    link = MavlinkLink(MavlinkConfig(url=f"udpout:127.0.0.1:{port}")).start()
+    try:
+        assert link.wait_connected(2)
+        link.send(lambda mav: mav.no_such_message_encode(), kind="broken")         # a builder with a bug
+        deadline = time.monotonic() + 5
+        while "after the bug" not in peer.texts() and time.monotonic() < deadline:
+            link.statustext("after the bug")
+            time.sleep(0.05)
+        assert "after the bug" in peer.texts()
+        assert link.alive and link.count.build_errors == 1
+    finally:
+        link.close()
+        peer.close()
+    assert not link.alive                                          # closed: the thread is gone
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")
+def test_the_service_is_unhealthy_once_the_link_thread_is_dead():
+    # issue 44 item 3: with the I/O thread dead, `connected` stayed True and the watchdog stayed fed
+    from uav_depth.daemon.config import ServiceConfig
+    from uav_depth.daemon.health import Health
+    from uav_depth.daemon.notify import Notifier
+    from uav_depth.daemon.state import ServiceState
+
+    port = free_port()
+    peer = Receiver(f"udpin:127.0.0.1:{port}", sysid=1, compid=1, autopilot=True)
+    cfg = MavlinkConfig(url=f"udpout:127.0.0.1:{port}")
+    link = MavlinkLink(cfg).start()
+    clock = SendClock(link, cfg, 0.3, estimate=lambda: None, limits=lambda: LIMITS, state=lambda: "boot").start()
+    health = Health(ServiceConfig(), Notifier(), ServiceState(), lambda: "")
+    health.watch("mavlink-io", link)
+    health.watch("mavlink-clock", clock)
+    try:
+        assert link.wait_connected(2)
+        assert health.healthy()
+
+        def dies(msg):            # the one seam: something on the I/O thread that even a catch-all lets through
+            raise SystemExit("the I/O thread ends here")
+        link.subscribe("HEARTBEAT", dies)
+        deadline = time.monotonic() + 10
+        while link.alive and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert not link.alive
+        assert clock.alive and not health.healthy()                # the watchdog is no longer fed
+        assert health.dead == ("mavlink-io",)
+    finally:
         clock.stop()
-        pub.close()
         link.close()
         peer.close()
 
 
-def test_the_stated_range_ends_where_readings_stop_being_precise():
-    """max_distance is the nearer of the range and the precise range (ranging.max_sigma_m)."""
-    lim = RangeLimits(min_distance_m=0.345, max_distance_m=7.0, hfov_rad=0.6, vfov_rad=0.35, precise_max_m=2.4671)
-    r = distance_report(estimate(distance=2.0, limits=lim), lim, 10.0, 0.3, 0.0)
-    assert r.max_distance == 246 and r.valid
-    beyond = distance_report(estimate(distance=2.6, limits=lim), lim, 10.0, 0.3, 0.0)
-    assert not beyond.sent
+def test_readings_keep_flowing_across_the_49_7_day_wrap_of_time_boot_ms():
+    # issue 44 item 8: time_boot_ms is masked to 32 bits and was compared with '>': after 49.7 days of
+    # uptime (2^32 ms) every new stamp looked older than the last one sent, and nothing was sent again
+    port = free_port()
+    peer = Receiver(f"udpin:127.0.0.1:{port}", sysid=255, compid=190)
+    cfg = MavlinkConfig(url=f"udpout:127.0.0.1:{port}", rate_hz=100, proximity_commit=True)
+    link = MavlinkLink(cfg).start()
+    pub = Publisher(period_s=0.02)
+    clock = SendClock(link, cfg, 0.3, estimate=lambda: pub.est, limits=lambda: LIMITS, state=lambda: "active")
+    clock.t_start = time.monotonic() - (2**32 - 600) / 1000.0     # the stamps wrap 0.6 s from now
+    clock.start()
+    try:
+        assert peer.wait(lambda: any(m.time_boot_ms < 10_000 and m.time_boot_ms != 2**32 - 1
+                                     for m in peer.of("DISTANCE_SENSOR")), 10)
+        t_wrap = time.monotonic()
+        time.sleep(1.0)                                             # and a second of readings after it
+    finally:
+        clock.stop()
+        pub.close()
+        link.close()
+        peer.close()
+    from uav_depth.daemon.link.contract import boot_ms
+
+    captured = {boot_ms(e.t_capture, clock.t_start) for e in pub.published}
+    ds = peer.of("DISTANCE_SENSOR")
+    readings = [m for m in ds if m.time_boot_ms in captured]
+    copies = [m for m in ds if m.time_boot_ms not in captured]
+    assert all((c.time_boot_ms + 1) % 2**32 in captured for c in copies)     # each copy 1 ms before its reading
+    after = [m for _, m in peer.timed("DISTANCE_SENSOR", since=t_wrap) if m.time_boot_ms in captured]
+    assert any(m.time_boot_ms > 2**31 for m in readings) and len(after) >= 20, len(after)   # ~50 in that second
+    unwrapped = [t + (2**32 if t < 2**31 else 0) for t in (m.time_boot_ms for m in readings)]
+    assert all(b > a for a, b in zip(unwrapped, unwrapped[1:]))     # strictly in order across the wrap

@@ -1,29 +1,13 @@
-"""The byte pipes under the MAVLink link: UDP out/in, TCP client/server, serial. No MAVLink in here.
+"""The stream pipes under the MAVLink link: TCP client, TCP server, serial.
 
-pymavlink's own connection objects are not used for I/O because they do what a
-flying link must not: ``udpin`` answers every address that ever sent it a byte
-(and remembers each forever), ``udpout`` binds to 0.0.0.0, a TCP write may block
-or go out half-written, and reconnects sleep. Each transport here is owned by
-one thread (the link's I/O thread), never blocks, and writes a frame whole or
-not at all:
-
-- :class:`UdpOut`: bound to ``bind_address`` (or the address the route to the
-  peer uses: 127.0.0.1 for a loopback peer) and ``connect()``-ed, so the kernel
-  delivers datagrams from the peer only.
-- :class:`UdpIn`: bound to HOST:PORT; it talks to one peer, the address the link
-  :meth:`~UdpIn.bind_peer` s (the autopilot's first HEARTBEAT), and drops
-  datagrams from every other address unread.
-- :class:`TcpClient` / :class:`TcpServer`: one stream; ``TcpServer`` keeps
-  listening and a new connection replaces the old one (the peer came back).
-- :class:`Serial`: a tty in non-blocking mode.
-
-Stream transports (TCP, serial) keep a partly written frame's tail and finish it
-before anything else; :meth:`Stream.overdue` says when a frame the kernel still
-holds (unsent, or sent and not acknowledged) has passed its deadline, so the link
-can discard it (:meth:`Stream.discard`: a TCP reset, a tty output flush) before it
-arrives old.
-
-Longer than 400 lines because each transport (udpin, udpout, tcp, tcpin, serial) keeps its non-blocking send and bounded read together.
+A stream may take only part of a frame: the rest (the tail) is finished before
+anything else, and only while the frame is within its deadline; a tail past its
+deadline is never written (the pipe is discarded instead, and the peer's parser
+drops the cut frame). Every frame handed to the kernel is remembered with its
+deadline until the kernel no longer holds any of its bytes: :meth:`Stream.overdue`
+says when one still held (unsent, or sent and not acknowledged) has passed its
+deadline, so the link can :meth:`~Stream.discard` it (a TCP reset, a tty output
+flush) before it arrives old.
 """
 
 from __future__ import annotations
@@ -32,169 +16,16 @@ import collections
 import errno
 import fcntl
 import os
-import select
 import socket
 import struct
 import termios
-import time
 
-#: Largest datagram worth parsing: MAVLink 2 frames are at most 280 bytes and an autopilot packs a
-#: few per datagram at most; anything bigger is junk and is dropped unread (a 64 KB datagram costs
-#: pymavlink's parser about 70 ms).
-MAX_DATAGRAM = 4096
-#: The first byte of every MAVLink frame (v2, v1). A MAVLink peer puts whole frames in a datagram, so a
-#: datagram that starts with anything else is junk and is dropped unread (parsing junk costs CPU that
-#: the stereo stage needs).
-MAVLINK_MAGIC = (0xFD, 0xFE)
-#: Datagrams read per call: the I/O thread writes between calls.
-DATAGRAMS_PER_READ = 8
-#: Bytes read per call, at most (a datagram is read whole): parsing 4 KB of junk takes pymavlink
-#: about 5 ms, so a write never waits longer than that behind inbound traffic.
-READ_BUDGET = 4096
+from uav_depth.daemon.link.transport import Transport
+
 #: Bytes read from a stream per call.
 STREAM_READ = 2048
-#: Kernel receive buffer for UDP sockets: a flood overflows it (the kernel drops), it does not grow memory.
-UDP_RCVBUF = 64 * 1024
 #: Kernel send buffer for streams: small, so little can wait in it.
 STREAM_SNDBUF = 8 * 1024
-
-
-class Transport:
-    """One pipe. ``fileno()`` for select; ``read()`` -> list of (bytes, peer); ``write(buf)`` -> bool."""
-
-    stream = False
-    dead = False          # set when the pipe was torn down on purpose (the link reconnects)
-    description = ""
-
-    def fileno(self) -> int:
-        raise NotImplementedError
-
-    def read(self) -> list[tuple[bytes, object]]:
-        """What is there now (never waits). Raises ConnectionError when the pipe is gone."""
-        raise NotImplementedError
-
-    def write(self, buf: bytes, deadline: float | None = None) -> bool:
-        """Send one frame now, whole, or return False (nothing sent). Raises ConnectionError when gone.
-
-        ``deadline`` (monotonic s): streams remember it while the kernel holds the frame.
-        """
-        raise NotImplementedError
-
-    @property
-    def can_send(self) -> bool:
-        return True
-
-    def close(self) -> None:
-        raise NotImplementedError
-
-    def poll(self) -> None:
-        """Housekeeping on every I/O loop turn (accept a new TCP peer...)."""
-
-
-def _split(url: str) -> tuple[str, int]:
-    host, _, port = url.rpartition(":")
-    return host, int(port)
-
-
-class UdpOut(Transport):
-    def __init__(self, host: str, port: int, bind_address: str | None = None):
-        addr = socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM)[0][4]
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, UDP_RCVBUF)
-        if bind_address:
-            self.sock.bind((bind_address, 0))
-        self.sock.connect(addr)           # binds to the route's source address; the kernel filters senders
-        self.sock.setblocking(False)
-        self.peer = addr
-        self.local = self.sock.getsockname()
-        self.description = f"udpout {addr[0]}:{addr[1]} from {self.local[0]}:{self.local[1]}"
-        self.dropped_datagrams = 0
-
-    def fileno(self) -> int:
-        return self.sock.fileno()
-
-    def read(self) -> list[tuple[bytes, object]]:
-        out, budget = [], READ_BUDGET
-        for _ in range(DATAGRAMS_PER_READ):
-            if budget <= 0:
-                break
-            try:
-                data = self.sock.recv(65536)
-            except (BlockingIOError, InterruptedError):
-                break
-            except ConnectionRefusedError:     # ICMP: nobody listens there (yet)
-                continue
-            if len(data) > MAX_DATAGRAM or not data or data[0] not in MAVLINK_MAGIC:
-                self.dropped_datagrams += 1
-                continue
-            out.append((data, self.peer))
-            budget -= len(data)
-        return out
-
-    def write(self, buf: bytes, deadline: float | None = None) -> bool:
-        try:
-            return self.sock.send(buf) == len(buf)
-        except (BlockingIOError, InterruptedError, ConnectionRefusedError):
-            return False
-
-    def close(self) -> None:
-        self.sock.close()
-
-
-class UdpIn(Transport):
-    def __init__(self, host: str, port: int):
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, UDP_RCVBUF)
-        self.sock.bind((host, port))
-        self.sock.setblocking(False)
-        self.peer: tuple[str, int] | None = None
-        self.peer_heard = 0.0
-        self.description = f"udpin {host}:{port}"
-        self.dropped_datagrams = 0
-
-    def fileno(self) -> int:
-        return self.sock.fileno()
-
-    def bind_peer(self, addr: tuple[str, int]) -> None:
-        self.peer = addr
-        self.peer_heard = time.monotonic()
-
-    def read(self) -> list[tuple[bytes, object]]:
-        out, budget = [], READ_BUDGET
-        for _ in range(DATAGRAMS_PER_READ):
-            if budget <= 0:
-                break
-            try:
-                data, addr = self.sock.recvfrom(65536)
-            except (BlockingIOError, InterruptedError):
-                break
-            except ConnectionRefusedError:
-                continue
-            if (len(data) > MAX_DATAGRAM or not data or data[0] not in MAVLINK_MAGIC
-                    or (self.peer is not None and addr != self.peer)):
-                self.dropped_datagrams += 1      # junk, or a stranger: never parsed, never answered
-                continue
-            if addr == self.peer:
-                self.peer_heard = time.monotonic()
-            out.append((data, addr))
-            budget -= len(data)
-        return out
-
-    @property
-    def can_send(self) -> bool:
-        return self.peer is not None
-
-    def write(self, buf: bytes, deadline: float | None = None) -> bool:
-        if self.peer is None:
-            return False
-        try:
-            return self.sock.sendto(buf, self.peer) == len(buf)
-        except (BlockingIOError, InterruptedError, ConnectionRefusedError):
-            return False
-
-    def close(self) -> None:
-        self.sock.close()
 
 
 def _outq(fd: int) -> int:
@@ -232,7 +63,11 @@ class Stream(Transport):
         self._tail, self._tail_deadline, self._written = b"", None, 0
         self._frames.clear()
 
-    def _flush_tail(self) -> bool:
+    def _flush_tail(self, now: float | None) -> bool:
+        """Finish the frame the kernel took only part of; False while it cannot (or must not: past its
+        deadline, its end would complete an old reading at the peer)."""
+        if self._tail and self.tail_expired(now):
+            return False
         while self._tail:
             try:
                 n = self._send(self._tail)
@@ -242,8 +77,11 @@ class Stream(Transport):
             self._tail = self._tail[n:]
         return True
 
-    def write(self, buf: bytes, deadline: float | None = None) -> bool:
-        if self._fd() is None or not self._flush_tail():
+    def tail_expired(self, now: float | None) -> bool:
+        return bool(self._tail) and None not in (now, self._tail_deadline) and now > self._tail_deadline
+
+    def write(self, buf: bytes, deadline: float | None = None, now: float | None = None) -> bool:
+        if self._fd() is None or not self._flush_tail(now):
             return False
         try:
             n = self._send(buf)
@@ -266,7 +104,7 @@ class Stream(Transport):
         fd = self._fd()
         if fd is None:
             return False
-        if self._tail and self._tail_deadline is not None and now > self._tail_deadline:
+        if self.tail_expired(now):
             return True
         gone = self._written - _outq(fd)                    # bytes the peer has acknowledged
         while self._frames and self._frames[0][0] <= gone:
@@ -458,28 +296,3 @@ class Serial(Stream):
 
     def close(self) -> None:
         self.port.close()
-
-
-def open_transport(url: str, baud: int, bind_address: str | None = None) -> Transport:
-    """The transport for a pymavlink-style connection string (see ``mavlink.url``)."""
-    if url.startswith("/dev/") or url.upper().startswith("COM"):
-        return Serial(url, baud)
-    scheme, _, rest = url.partition(":")
-    host, port = _split(rest)
-    if scheme == "udpout":
-        return UdpOut(host, port, bind_address)
-    if scheme in ("udpin", "udp"):
-        return UdpIn(host, port)
-    if scheme == "tcp":
-        return TcpClient(host, port)
-    if scheme == "tcpin":
-        return TcpServer(host, port)
-    raise ValueError(f"unknown connection scheme {scheme!r}")
-
-
-def wait_readable(fds: list[int], timeout_s: float) -> list[int]:
-    try:
-        r, _, _ = select.select(fds, [], [], max(0.0, timeout_s))
-    except (OSError, ValueError):
-        return []
-    return r

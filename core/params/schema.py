@@ -1,15 +1,13 @@
-"""The stereo parameter schema: one definition, used by the daemon, the tuner and the CLI.
+"""The stereo parameter schema: every key of the parameter file declared once, and the frozen parameters.
 
-Every key of the parameter file is declared once in :data:`SPECS` with its type,
-bounds, rule and the paper's symbol. The loader, the writer, the tuner's search
-spaces and the README table all read this table; nothing else states a range.
+Every key is declared once in :data:`SPECS` with its type, bounds, rule and the
+paper's symbol. The loader and writer (:mod:`.file`), the tuner's search spaces and
+the docs' table all read this table; nothing else states a range.
 
 The defaults are the *manual configuration* baseline: OpenCV's own sample values
 (``samples/python/stereo_match.py``: P1 = 8*3*block_size**2, P2 = 32*3*block_size**2,
 disp12MaxDiff 1, uniquenessRatio 10, speckle 100/32; ``disparity_filtering.cpp``:
 lambda 8000, sigma 1.5). The tuner reports its gains against them.
-
-Longer than 400 lines because it is the one parameter schema (every key, bound and rule) with its loader and writer.
 """
 
 from __future__ import annotations
@@ -17,18 +15,11 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
-import tempfile
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Mapping
 
-import yaml
-
-from uav_depth.core.fileio import atomic_write_text
 from uav_depth.core.errors import ConfigError
 from uav_depth.core.validate import fmt, in_range, number
-from uav_depth.core.yamlfile import load_yaml_file
 
 #: OpenCV's SGBM stores P1, P2 and path costs in 16-bit signed integers (CostType
 #: is short). A penalty above this wraps around and the matcher returns garbage.
@@ -161,6 +152,9 @@ SPEC_BY_KEY: dict[str, Spec] = {s.key: s for s in SPECS}
 #: spaces decode inside them (:func:`accepted_range`), so no candidate is built that the schema refuses.
 #: (key, other, gap): ``key`` must be at least ``other`` + gap (SGBM needs P2 > P1).
 ABOVE: tuple[tuple[str, str, int], ...] = (("sgbm.p2", "sgbm.p1", 1),)
+#: (key, other, least): ``key`` + ``other`` must be at least ``least``: the search must reach a positive disparity
+#: (min_disparity + num_disparities - 1 >= 1), since the ranging and the near pass divide by the largest one.
+SUM_AT_LEAST: tuple[tuple[str, str, int], ...] = (("sgbm.num_disparities", "sgbm.min_disparity", 2),)
 #: (key, other, when, cap, why): ``key`` must be at most ``cap`` while ``other`` is ``when``.
 CAPPED_WHEN: tuple[tuple[str, str, Any, int, str], ...] = (
     ("sgbm.uniqueness_ratio", "sgbm.mode", "sgbm_3way", OPENCV_3WAY_UNIQUENESS_MAX,
@@ -174,9 +168,9 @@ def accepted_range(key: str, values: Mapping[str, Any], limits: Mapping[str, flo
                    ) -> tuple[float, float]:
     """The inclusive range of numeric ``key`` that a file the daemon flies may hold, given the other keys'
     ``values`` (dotted key -> value; a key not in it does not narrow the range): the key's bounds, OpenCV's
-    :data:`COMPUTABLE_MAX`, and the rules between keys (:data:`ABOVE`, :data:`CAPPED_WHEN`). ``limits``: further
-    caps (key -> largest value) a caller applies to any key, and so to the keys that must stay above it.
-    A ``positive`` key's lower bound is exclusive (its rule)."""
+    :data:`COMPUTABLE_MAX`, and the rules between keys (:data:`ABOVE`, :data:`SUM_AT_LEAST`, :data:`CAPPED_WHEN`).
+    ``limits``: further caps (key -> largest value) a caller applies to any key, and so to the keys that must
+    stay above it. A ``positive`` key's lower bound is exclusive (its rule)."""
     spec = SPEC_BY_KEY[key]
     lo, hi = float(spec.lo), float(min(spec.hi, COMPUTABLE_MAX.get(key, spec.hi), (limits or {}).get(key, spec.hi)))
     for k, other, gap in ABOVE:
@@ -184,6 +178,9 @@ def accepted_range(key: str, values: Mapping[str, Any], limits: Mapping[str, flo
             lo = max(lo, float(values[other] + gap))
         if other == key:                # room for the key that must stay above this one
             hi = min(hi, accepted_range(k, {}, limits)[1] - gap)
+    for k, other, least in SUM_AT_LEAST:
+        if k == key and values.get(other) is not None:
+            lo = max(lo, float(least - values[other]))
     for k, other, when, cap, _ in CAPPED_WHEN:
         if k == key and values.get(other) == when:
             hi = min(hi, float(cap))
@@ -340,7 +337,7 @@ def params_from_dict(data: Any, source: str | None = None) -> StereoParams:
 
 
 def _check_rules(values: Mapping[str, Mapping[str, Any]], source: str | None) -> None:
-    """The rules between keys (:data:`ABOVE`, :data:`CAPPED_WHEN`) on validated values by section."""
+    """The rules between keys (:data:`ABOVE`, :data:`SUM_AT_LEAST`, :data:`CAPPED_WHEN`) on validated values."""
     def get(key: str) -> Any:
         section, name = key.split(".")
         return values[section][_attr(name)]
@@ -349,119 +346,14 @@ def _check_rules(values: Mapping[str, Mapping[str, Any]], source: str | None) ->
         if get(key) < get(other) + gap:
             rule = "greater than" if gap == 1 else f"at least {gap} above"
             raise ConfigError(key, f"must be {rule} {other} ({get(other)})", get(key), source)
+    for key, other, least in SUM_AT_LEAST:
+        if get(key) + get(other) < least:
+            raise ConfigError(key, f"must reach positive disparities: with {other} {get(other)} the largest "
+                              f"disparity searched (min_disparity + num_disparities - 1) must be at least {least - 1} "
+                              "(ranging and the near pass divide by it)", get(key), source)
     for key, other, when, cap, why in CAPPED_WHEN:
         if get(other) == when and get(key) > cap:
             raise ConfigError(key, f"must be at most {cap} with {other} {when} ({why})", get(key), source)
-
-
-def disparity_search_range(focal_px: float, baseline_m: float, near_m: float, far_m: float = math.inf,
-                           scale: float = 1.0) -> tuple[int, int]:
-    """``(sgbm.min_disparity, sgbm.num_disparities)`` covering distances ``near_m``..``far_m``.
-
-    d = f * B / Z in input pixels, times ``compute.scale`` because SGBM counts
-    matched pixels. ``far_m`` infinite (the default) keeps min_disparity 0, so the
-    far background still finds its true match instead of a false near one. The
-    values are checked against the schema like any file value.
-    """
-    if not (math.isfinite(near_m) and near_m > 0):
-        raise ConfigError("near_m", "must be a positive distance in metres", near_m)
-    if not far_m > near_m:
-        raise ConfigError("far_m", f"must be greater than near_m ({near_m})", far_m)
-    fb = focal_px * baseline_m * scale
-    min_d = int(math.floor(fb / far_m)) if math.isfinite(far_m) else 0
-    max_d = int(math.ceil(fb / near_m))
-    num = 16 * math.ceil((max_d - min_d + 1) / 16)
-    return (SPEC_BY_KEY["sgbm.min_disparity"].check(min_d, "disparity_search_range"),
-            SPEC_BY_KEY["sgbm.num_disparities"].check(num, "disparity_search_range"))
-
-
-def check_computable(params: StereoParams, source: str | None = None) -> StereoParams:
-    """Refuse parameters OpenCV cannot compute with, whatever the image: penalties over its 16-bit cost range.
-
-    The schema's bounds for p1/p2 are the paper's search ranges (the faithful tuner
-    explores them, and the pipeline answers an overflow with an all-NaN map); a file
-    the daemon flies or ``params check`` passes must also satisfy this.
-    """
-    for key, most in COMPUTABLE_MAX.items():
-        value = params.get(key)
-        if value > most:
-            raise ConfigError(key, f"must be at most {most} (OpenCV's SGBM keeps costs in 16-bit "
-                                   "integers; above it they wrap and nothing is measured)", value, source)
-    return params
-
-
-def check_image_size(params: StereoParams, width: int, height: int, source: str | None = None) -> None:
-    """Refuse parameters that cannot match anything in a ``width`` x ``height`` input image.
-
-    OpenCV's SGBM refuses an image whose matched width is not more than
-    min_disparity + num_disparities + block_size // 2 (matched pixels, i.e. the input
-    times ``compute.scale``), and computes a disparity only for columns x with
-    min_disparity + num_disparities <= x; its block must fit the image.
-    """
-    sg, scale = params.sgbm, params.compute.scale
-    mw, mh = int(round(width * scale)), int(round(height * scale))
-    reach = sg.min_disparity + sg.num_disparities
-    if mw - reach <= sg.block_size // 2:
-        raise ConfigError("sgbm.num_disparities", f"must leave columns to match: sgbm.min_disparity + "
-                          f"sgbm.num_disparities + sgbm.block_size // 2 must be below the matched image width "
-                          f"{mw} px ({width} px x compute.scale {scale:g})", sg.num_disparities, source)
-    if sg.block_size > min(mw, mh):
-        raise ConfigError("sgbm.block_size", f"must fit the matched image ({mw}x{mh} px)", sg.block_size, source)
-
-
-def load_params(path: str | os.PathLike[str]) -> StereoParams:
-    """Read and validate a parameter file. Errors name the file, key, rule and value.
-
-    Stricter than :func:`params_from_dict`: the file must be UTF-8 YAML with no key
-    given twice, must set at least one section (an empty file is an error, not the
-    defaults), and must pass :func:`check_computable`.
-    """
-    path = Path(path)
-    data = load_yaml_file(path, "parameter file")
-    params = params_from_dict(data, source=str(path))
-    if data is None or not any(k in SECTIONS for k in data):
-        raise ConfigError("(file)", f"must set at least one section ({', '.join(SECTIONS)}); an empty file is "
-                          "not taken as the defaults (write them with: uav-depth params default)",
-                          "" if data is None else data, str(path))
-    return check_computable(params, str(path))
-
-
-def read_provenance(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """The ``provenance`` mapping of a parameter file ({} when absent)."""
-    data = load_yaml_file(path, "parameter file") or {}
-    prov = data.get("provenance") if isinstance(data, Mapping) else None
-    return dict(prov) if isinstance(prov, Mapping) else {}
-
-
-class _FileDumper(yaml.SafeDumper):
-    """Safe YAML with lists of plain numbers on one line: ``roi: [0.3, 0.3, 0.7, 0.7]``."""
-
-
-_FileDumper.add_representer(
-    list, lambda dumper, data: dumper.represent_sequence(
-        "tag:yaml.org,2002:seq", data,
-        flow_style=all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in data) or None))
-
-
-def dump_params(params: StereoParams, provenance: Mapping[str, Any] | None = None) -> str:
-    """YAML text of ``params`` (and provenance), guaranteed to load back equal."""
-    doc: dict[str, Any] = params.to_dict()
-    if provenance:
-        doc["provenance"] = json.loads(json.dumps(dict(provenance), default=str))
-    text = yaml.dump(doc, Dumper=_FileDumper, sort_keys=False)
-    if params_from_dict(yaml.safe_load(text)) != params:  # never write what the loader would not give back
-        raise ConfigError("(file)", "must round-trip through the loader", text)
-    return text
-
-
-def save_params(params: StereoParams, path: str | os.PathLike[str],
-                provenance: Mapping[str, Any] | None = None) -> Path:
-    """Write ``params`` atomically: temp file in the same directory, fsync, rename.
-
-    A reader (the daemon's hot reload) sees either the old file or the whole new
-    one, never a half-written file; a file the loader would reject is never written.
-    """
-    return atomic_write_text(path, dump_params(params, provenance))
 
 
 def params_table_markdown() -> str:

@@ -1,4 +1,5 @@
-"""What every frame source delivers: :class:`Frame`, and the :class:`FrameSource` contract."""
+"""What every frame source delivers: :class:`Frame`, and the :class:`FrameSource` contract (the runtime's cameras
+and replay implement it, and so does the simulator's synthetic source)."""
 
 from __future__ import annotations
 

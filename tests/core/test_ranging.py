@@ -9,16 +9,19 @@ import numpy as np
 import pytest
 
 from uav_depth.core.calibration import Calibration
-from uav_depth.daemon.ranging import RangingConfig
-from uav_depth.core.disparity import DisparityPipeline, DisparityResult
+from uav_depth.core.disparity import MEASURED, DisparityPipeline, DisparityResult, FineMatch
 from uav_depth.core.errors import ConfigError
 from uav_depth.core.params import DEFAULT_PARAMS, load_params
-from uav_depth.daemon.ranging import (NEAR_END_BAND, OutlierGate, Ranger, _median, _weighted_quantiles, default_roi,
-                                      resolve_roi)
+from uav_depth.core.ranging import (NEAR_END_BAND, OutlierGate, Ranger, RangingConfig, Reason, default_roi,
+                                    resolve_roi, slant)
+from uav_depth.core.ranging.nearest import find
+from uav_depth.core.ranging.stats import median, weighted_quantiles
 from uav_depth.sim.scene import Scene, SceneConfig
 from uav_depth.sim.sweep import render
 
 PARAMS = DEFAULT_PARAMS.replace(**{"sgbm.num_disparities": 64})
+#: The near check's two rules on the near pass's matches beyond the search (docs/ranging.md, *Too close*, 1 and 3).
+NEAR_PASS_RULES = (Reason.NEAR_PASS, Reason.NEAR_UNCONFIRMED)
 
 
 @functools.lru_cache(maxsize=None)
@@ -56,7 +59,7 @@ def test_wls_fill_in_is_never_ranged():
     measured = np.full((360, 640), np.nan, np.float32)
     filled = np.full((360, 640), 22.0, np.float32)      # WLS filled everything in
     m = ranger().measure(_result(measured, disparity=filled, confidence=np.ones_like(filled)))
-    assert not m.valid and "no object of 25 matched pixels" in m.reason
+    assert not m.valid and m.reason_code is Reason.NO_OBJECT and "25 matched pixels" in m.reason
 
 
 def test_low_confidence_pixels_are_not_used():
@@ -171,14 +174,13 @@ def test_surface_quantile_reads_the_near_side_of_a_round_branch(monkeypatch):
     """A horizontal cylinder of radius 3 cm whose nearest surface is 1 m away fills the ROI's rows:
     over the whole band the median reads about 13% of the radius behind the surface, the default
     quantile within 1.5 mm (with the near-end window too)."""
-    import uav_depth.daemon.ranging as ranging_module
     fb, r, zc = 350.0 * 0.063, 0.03, 1.03
     rows = 120                                           # the default ROI's rows: 120..239 of 360
     y = np.linspace(-r, r, rows, endpoint=False) + r / rows
     d = np.full((360, 640), np.nan, np.float32)
     d[120:240] = np.repeat((fb / (zc - np.sqrt(r * r - y * y)))[:, None], 640, axis=1)
     near = ranger(RangingConfig()).measure(_result(d)).distance_m
-    monkeypatch.setattr(ranging_module, "FRONT_WINDOW_MATCHED_PX", 0)     # the band's quantile alone
+    monkeypatch.setattr(slant, "FRONT_WINDOW_MATCHED_PX", 0)     # the band's quantile alone
     median = ranger(RangingConfig(surface_quantile=0.5)).measure(_result(d)).distance_m
     assert median - 1.0 == pytest.approx(r * (1 - math.sqrt(0.75)), abs=1e-3)
     assert abs(near - 1.0) < 1.5e-3 < median - 1.0
@@ -207,7 +209,7 @@ def test_a_branch_inside_the_minimum_range_is_too_close_never_a_farther_distance
     assert r.limits.min_distance_m == pytest.approx(0.2938, abs=1e-4)
     m = r.measure(flight_pipeline(flight).run(frame.left, frame.right))
     assert m.too_close and m.distance_m is None, m
-    assert "near pass" in m.reason
+    assert m.reason_code in NEAR_PASS_RULES, m
 
 
 def test_without_the_near_pass_the_same_frame_is_not_reported_as_a_distance_either():
@@ -215,9 +217,9 @@ def test_without_the_near_pass_the_same_frame_is_not_reported_as_a_distance_eith
     the quality floor drops it (it scored 9 on this frame)."""
     flight = load_params(FLIGHT_FILE)
     cfg, frame = _flight_frame(0.20, 0)
-    result = DisparityPipeline(flight, refine=False).run(frame.left, frame.right)
+    result = DisparityPipeline(flight, MEASURED).run(frame.left, frame.right)
     m = Ranger(RangingConfig(thin_guard_m2=0.0), cfg.calibration, cfg.center_roi, flight).measure(result)
-    assert not m.valid and not m.too_close and "min_quality" in m.reason
+    assert not m.valid and not m.too_close and m.reason_code is Reason.QUALITY_FLOOR
     # With the thin guard (the default) the branch's consistent matches read within 1.4 x the minimum range.
     m = Ranger(RangingConfig(), cfg.calibration, cfg.center_roi, flight).measure(result)
     assert not m.valid and m.too_close and m.guarded
@@ -241,7 +243,7 @@ def test_on_a_frame_narrower_than_the_near_pass_reaches_a_branch_inside_the_mini
         r = Ranger(RangingConfig(), calib, roi, params)
         assert truth_m < r.search_end_m == pytest.approx(1.571, abs=1e-3)
         m = r.measure(flight_pipeline(params).run(left, right))
-        assert m.too_close and m.distance_m is None and "near pass" in m.reason, m
+        assert m.too_close and m.distance_m is None and m.reason_code in NEAR_PASS_RULES, m
 
 
 def test_a_background_that_repeats_inside_the_near_search_is_not_read_as_too_close():
@@ -282,10 +284,10 @@ def test_a_thin_branch_just_inside_the_minimum_range_is_too_close_on_the_near_pa
     assert truth_m < r.limits.min_distance_m
     res = flight_pipeline(DEFAULT_PARAMS).run(left, right)
     m = r.measure(res)
-    assert m.too_close and m.distance_m is None and "near pass" in m.reason, m
+    assert m.too_close and m.distance_m is None and m.reason_code in NEAR_PASS_RULES, m
     x0, y0, x1, y1 = roi
     with np.errstate(invalid="ignore"):
-        beyond = res.near_consistent[y0:y1, x0:x1] & (res.near.disparity[y0:y1, x0:x1] > r.d_max)
+        beyond = res.near.consistent[y0:y1, x0:x1] & (res.near.disparity[y0:y1, x0:x1] > r.d_max)
     assert beyond.mean() > 0.05
     assert (res.near.confidence()[y0:y1, x0:x1][beyond] >= RangingConfig().min_confidence).mean() < 0.1
 
@@ -318,10 +320,10 @@ def test_an_object_piled_at_the_end_of_the_search_is_too_close():
     d = np.full((360, 640), fb / 2.0, np.float32)       # a wall at 2 m
     d[130:230, 250:400] = 63.0                           # an object at the search's last disparity (64 - 1)
     m = ranger().measure(_result(d))
-    assert m.too_close and not m.valid and "search's end" in m.reason
+    assert m.too_close and not m.valid and m.reason_code is Reason.SEARCH_END
     d[130:230, 250:400] = 61.0                           # two pixels inside the search: not piled at its end
     m = ranger().measure(_result(d))
-    assert "search's end" not in m.reason and m.too_close     # (rule 8: in the search's last 5 %)
+    assert m.too_close and m.reason_code is Reason.NEAR_END_BAND     # (rule 8: in the search's last 5 %)
     d[130:230, 250:400] = 59.0                           # outside the last 5 % (59.85 px): a distance
     m = ranger().measure(_result(d))
     assert m.valid and m.distance_m == pytest.approx(fb / 59.0, rel=1e-3)
@@ -337,7 +339,7 @@ def test_near_pass_evidence_makes_too_close():
     near[120:156, 213:426] = 90.0                                  # 30 % of the ROI's rows at 0.245 m
     res = DisparityResult(measured, measured, None, near=NearCheck(near, 63.0))
     m = ranger().measure(res)
-    assert m.too_close and "near pass" in m.reason
+    assert m.too_close and m.reason_code is Reason.NEAR_PASS
     near[120:132, 213:426] = 90.0
     near[132:156] = np.nan                                         # 10 %: not enough evidence
     m = ranger().measure(DisparityResult(measured, measured, None, near=NearCheck(near, 63.0)))
@@ -358,7 +360,7 @@ def test_a_small_near_object_the_main_pass_does_not_match_is_too_close():
     blind = measured.copy()
     blind[120:125, 213:426] = np.nan                               # ... which the main pass did not match
     m = ranger().measure(DisparityResult(blind, blind, None, near=NearCheck(near, 63.0)))
-    assert m.too_close and "matches nothing confidently" in m.reason, m
+    assert m.too_close and m.reason_code is Reason.NEAR_UNCONFIRMED, m
     m = ranger().measure(DisparityResult(measured, measured, None, near=NearCheck(near, 63.0)))
     assert m.valid and m.distance_m == pytest.approx(0.5, rel=1e-3)
     near[122:125] = np.nan                                         # 1.7 %: over the floor's 1.5 %
@@ -397,7 +399,7 @@ def test_a_textured_region_that_nothing_matches_is_too_close():
     tex = np.zeros((360, 640), bool)
     tex[120:150, 213:426] = True                                   # 25 % of the ROI textured in both views
     m = ranger().measure(DisparityResult(measured, measured, None, near=NearCheck(near, 63.0, lambda: tex)))
-    assert m.too_close and not m.valid and "textured in both views" in m.reason, m
+    assert m.too_close and not m.valid and m.reason_code is Reason.BLANK_TEXTURED, m
     m = ranger().measure(DisparityResult(measured, measured, None, near=NearCheck(near, 63.0, lambda: tex & False)))
     assert not m.too_close and not m.valid
     measured[120:150, 213:426] = 30.0                              # 25 % matched: a scene, not a blank
@@ -428,7 +430,7 @@ def test_rule_4_counts_the_near_pass_confident_matches_and_asks_for_them_only_on
     assert not m.too_close, m
     m = ranger().measure(DisparityResult(measured, measured, None, near=NearCheck(near, 63.0, lambda: tex,
                                                                                   lambda: zeros)))
-    assert m.too_close and "textured in both views" in m.reason, m
+    assert m.too_close and m.reason_code is Reason.BLANK_TEXTURED, m
 
     def not_asked() -> np.ndarray:
         raise AssertionError("the near confidence is computed only when the main pass matched too little")
@@ -482,7 +484,7 @@ def test_a_sky_like_noisy_frame_is_not_too_close():
 
 def test_a_blank_frame_right_after_too_close_stays_too_close():
     gate = OutlierGate(max_jump_rel=0.2, confirm_frames=2, forget_s=1.0)
-    from uav_depth.daemon.ranging import Measurement
+    from uav_depth.core.ranging import Measurement
 
     blank = Measurement(None, valid_fraction=0.01, reason="nothing matched")
     assert not gate.near(blank, 0.28, 0.0).too_close               # blank from the start: no measurement
@@ -533,10 +535,10 @@ def test_a_weak_reading_at_the_minimum_range_is_too_close():
     d = np.full((360, 640), np.nan, np.float32)
     d[120:150, 213:426] = fb / (1.35 * lim)              # 25 % of the ROI measured: quality 25, under 31
     m = r.measure(_result(d))
-    assert m.too_close and not m.valid and "within 1.4 x the search's end" in m.reason, m
+    assert m.too_close and not m.valid and m.reason_code is Reason.WEAK_NEAR, m
     d[120:150, 213:426] = fb / (1.5 * lim)
     m = r.measure(_result(d))
-    assert not m.too_close and not m.valid and "below min_quality" in m.reason, m
+    assert not m.too_close and not m.valid and m.reason_code is Reason.QUALITY_FLOOR, m
     d[120:150, 213:426] = fb / (1.35 * lim)
     m = ranger(RangingConfig(min_quality=20)).measure(_result(d))
     assert m.valid and m.distance_m == pytest.approx(1.35 * lim, rel=1e-3)
@@ -566,7 +568,7 @@ def test_a_reading_in_the_search_s_last_5_percent_is_too_close():
     d = np.full((360, 640), fb / 2.0, np.float32)       # a wall at 2 m
     d[130:230, 250:400] = 0.97 * 63.0                   # 3 % short of the search's end: quality 100
     m = r.measure(_result(d))
-    assert m.too_close and not m.valid and m.quality == 100 and "last 5 %" in m.reason, m
+    assert m.too_close and not m.valid and m.quality == 100 and m.reason_code is Reason.NEAR_END_BAND, m
     d[130:230, 250:400] = 0.94 * 63.0
     m = r.measure(_result(d))
     assert m.valid and m.distance_m == pytest.approx(fb / (0.94 * 63.0), rel=1e-3)
@@ -584,7 +586,7 @@ def test_a_twig_inside_the_minimum_range_read_just_beyond_it_is_too_close():
     r = Ranger(RangingConfig(), cfg.calibration, cfg.center_roi, DEFAULT_PARAMS)
     assert frame.truth(cfg.center_roi).significant_m < 0.9 * r.search_end_m
     m = r.measure(flight_pipeline(DEFAULT_PARAMS).run(frame.left, frame.right))
-    assert m.too_close and not m.valid and "last 5 %" in m.reason, m
+    assert m.too_close and not m.valid and m.reason_code is Reason.NEAR_END_BAND, m
     # what it read: just beyond the search's end, inside the minimum range stated
     assert r.search_end_m < cfg.focal_px * cfg.baseline_m / m.disparity_px < r.limits.min_distance_m, m
 
@@ -616,7 +618,7 @@ def test_readings_below_the_quality_floor_are_no_measurement():
     d = np.full((360, 640), np.nan, np.float32)
     d[120:150, 213:426] = fb / 1.0                       # 25 % of the ROI measured: quality 25
     m = ranger(RangingConfig(min_quality=40)).measure(_result(d))
-    assert not m.valid and m.quality == 25 and "below min_quality 40" in m.reason
+    assert not m.valid and m.quality == 25 and m.reason_code is Reason.QUALITY_FLOOR and "40" in m.reason
     m = ranger(RangingConfig(min_quality=20)).measure(_result(d))
     assert m.valid and m.quality == 25
 
@@ -633,7 +635,7 @@ def test_one_definition_of_the_default_roi_and_of_a_significant_object():
 
 def test_the_range_ends_where_the_sigma_floor_passes_what_the_wire_carries():
     """By default a reading is never less precise than DISTANCE_SENSOR's covariance can say (15.9 cm)."""
-    from uav_depth.daemon.ranging import PIXEL_LOCKING_SIGMA_PX, WIRE_SIGMA_MAX_M
+    from uav_depth.core.ranging import PIXEL_LOCKING_SIGMA_PX, WIRE_SIGMA_MAX_M
 
     fb = 350.0 * 0.063
     for params, px in ((PARAMS, 1.0), (PARAMS.replace(**{"compute.scale": 0.5}), 2.0)):
@@ -649,7 +651,7 @@ def test_the_range_ends_where_the_sigma_floor_passes_what_the_wire_carries():
     rng = np.random.default_rng(0)
     d = (fb / 2.0 + rng.normal(0, 2.0, (360, 640))).astype(np.float32)     # 2 m, spread 2 px: sigma ~0.36 m
     m = ranger(RangingConfig(cluster_depth_m=1.0, surface_quantile=0.5)).measure(_result(d))
-    assert not m.valid and "above max_sigma_m" in m.reason
+    assert not m.valid and m.reason_code is Reason.SIGMA_CEILING
     assert ranger(RangingConfig(cluster_depth_m=1.0, surface_quantile=0.5, max_sigma_m=1.0)).measure(_result(d)).valid
 
 
@@ -666,17 +668,21 @@ def _coarse_wall_and_branch(branch_d: float):
     return d
 
 
-def _fine_answer(value, calls):
-    """A fine pass that answers ``value`` (a number, or a function of the box's shape) over the box asked for."""
-    from uav_depth.core.disparity.fine import FineMatch
+class _FineAnswer:
+    """A fine pass that answers ``value`` (a number, a function of the box's shape, or None: nothing matched)
+    over the box asked for, and records each request in ``calls``."""
 
-    def fine(box, d0):
-        calls.append((box, d0))
+    def __init__(self, value, calls):
+        self.value, self.calls = value, calls
+
+    def match(self, box, d0):
+        self.calls.append((box, d0))
+        if self.value is None:
+            return None
         x0, y0, x1, y1 = box
         m = np.full((y1 - y0, x1 - x0), np.nan, np.float32)
-        m[...] = value(m.shape) if callable(value) else value
+        m[...] = self.value(m.shape) if callable(self.value) else self.value
         return FineMatch(box, m, np.ones_like(m), float(d0), float(d0 + 31))
-    return fine
 
 
 def test_the_fine_pass_replaces_a_coarse_reading_that_was_too_far():
@@ -691,8 +697,8 @@ def test_the_fine_pass_replaces_a_coarse_reading_that_was_too_far():
         return out
 
     d = _coarse_wall_and_branch(40.0)
-    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, None, fine=_fine_answer(branch_nearer, calls)))
-    from uav_depth.daemon.ranging import FINE_MAX_COLS, FINE_MAX_ROWS
+    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, None, fine=_FineAnswer(branch_nearer, calls)))
+    from uav_depth.core.ranging.fine import FINE_MAX_COLS, FINE_MAX_ROWS
 
     (box, d0), = calls
     assert box[1] <= 160 and box[3] >= 190                     # the branch's rows and a margin
@@ -708,16 +714,16 @@ def test_a_fine_reading_farther_than_one_coarse_pixel_does_not_replace_the_coars
     within the coarse pass's rounding (half a matched px = 1 input px at scale 0.5)."""
     fb = 350.0 * 0.063
     d = _coarse_wall_and_branch(40.0)
-    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, None, fine=_fine_answer(37.0, [])))
+    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, None, fine=_FineAnswer(37.0, [])))
     assert not m.refined and m.distance_m == pytest.approx(fb / 40.0, rel=1e-3)
     # Within half a coarse pixel and measured at least as tightly: the fine reading stands.
-    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, None, fine=_fine_answer(39.0, [])))
+    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, None, fine=_FineAnswer(39.0, [])))
     assert m.refined and m.distance_m == pytest.approx(fb / 39.0, rel=1e-3)
     # Within half a coarse pixel but spread wider than the coarse object (a third of its pixels each at 37, 38
     # and 39: it reads 39, sigma_d 1.5 px against the coarse floor 0.58): not confident.
     def split(shape):
         return (37.0 + np.indices(shape).sum(axis=0) % 3).astype(np.float32)
-    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, None, fine=_fine_answer(split, [])))
+    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, None, fine=_FineAnswer(split, [])))
     assert not m.refined and m.distance_m == pytest.approx(fb / 40.0, rel=1e-3)
 
 
@@ -736,7 +742,7 @@ def test_the_fine_pass_ignores_pixels_the_coarse_pass_saw_behind_the_object():
         out[170 - y0:180 - y0] = 40.5
         return out
 
-    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, None, fine=_fine_answer(background_wrong, calls)))
+    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, None, fine=_FineAnswer(background_wrong, calls)))
     box = calls[0][0]
     assert box[1] < 170 and box[3] > 180            # the box holds wall rows around the branch
     assert m.refined and m.distance_m == pytest.approx(fb / 40.5, rel=1e-3)
@@ -756,11 +762,11 @@ def test_the_fine_pass_looks_at_pixels_the_coarse_pass_did_not_measure():
         out[170 - y0:176 - y0] = 50.0           # 6 cm in front of the branch
         return out
 
-    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, None, fine=_fine_answer(twig, calls)))
+    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, None, fine=_FineAnswer(twig, calls)))
     assert m.refined and m.distance_m == pytest.approx(fb / 50.0, rel=1e-3)
     d[170:176, 213:426] = fb / 2.0                  # measured confidently behind: not the object's
     calls.clear()
-    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, None, fine=_fine_answer(twig, calls)))
+    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, None, fine=_FineAnswer(twig, calls)))
     assert m.distance_m == pytest.approx(fb / 40.0, rel=1e-3)
 
 
@@ -781,11 +787,11 @@ def test_the_fine_pass_looks_at_pixels_the_coarse_pass_measured_with_low_confide
         out[170 - y0:176 - y0] = 50.0
         return out
 
-    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, conf, fine=_fine_answer(twig, calls)))
+    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, conf, fine=_FineAnswer(twig, calls)))
     assert m.refined and m.distance_m == pytest.approx(fb / 50.0, rel=1e-3)
     conf[170:176, 213:426] = 1.0                    # confidently behind: the background's, as before
     calls.clear()
-    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, conf, fine=_fine_answer(twig, calls)))
+    m = ranger(params=HALF_FINE).measure(DisparityResult(d, d, conf, fine=_FineAnswer(twig, calls)))
     assert m.distance_m == pytest.approx(fb / 40.0, rel=1e-3)
 
 
@@ -796,7 +802,7 @@ def test_the_fine_pass_looks_into_columns_the_coarse_pass_could_not_answer():
     d = _coarse_wall_and_branch(40.0)
     d[:, :260] = np.nan                             # nothing answered left of column 260
     calls = []
-    ranger(params=HALF_FINE).measure(DisparityResult(d, d, None, fine=_fine_answer(40.0, calls)))
+    ranger(params=HALF_FINE).measure(DisparityResult(d, d, None, fine=_FineAnswer(40.0, calls)))
     assert calls[0][0][0] == 213                    # the ROI's left edge, not the coarse object's
 
 
@@ -808,7 +814,7 @@ def test_the_fine_pass_reads_a_hover_at_3_m_no_farther_than_the_coarse_pass_and_
     the truth by more than the coarse one is, nor 3 % from the truth either way, its error is inside two of its
     sigmas, and it is precise enough for the wire (sigma under 15.9 cm) where the coarse one is not."""
     from uav_depth.core.disparity import flight_pipeline
-    from uav_depth.daemon.ranging import WIRE_SIGMA_MAX_M
+    from uav_depth.core.ranging import WIRE_SIGMA_MAX_M
 
     flight = load_params(FLIGHT_FILE.with_name("params-flight-640x360.yaml"))
     assert flight.compute.fine_disparities == 32
@@ -832,16 +838,16 @@ def test_with_the_fine_pass_the_precise_range_follows_its_full_resolution_floor(
     """The fine pass's sigma floor is 1/sqrt(12) input px (half the coarse one at scale 0.5), so the stated
     range ends sqrt(2) farther; a reading the fine pass does not replace keeps the coarse sigma and is
     dropped beyond the coarse precise range."""
-    from uav_depth.daemon.ranging import PIXEL_LOCKING_SIGMA_PX, WIRE_SIGMA_MAX_M
+    from uav_depth.core.ranging import PIXEL_LOCKING_SIGMA_PX, WIRE_SIGMA_MAX_M
 
     fb = 350.0 * 0.063
     r = ranger(RangingConfig(max_distance_m=10.0), params=HALF_FINE)
     assert r.limits.precise_max_m == pytest.approx(math.sqrt(WIRE_SIGMA_MAX_M * fb / PIXEL_LOCKING_SIGMA_PX))
     z = 3.0                                                  # beyond the coarse 2.47 m, inside the fine 3.49 m
     d = np.full((360, 640), fb / z, np.float32)
-    coarse_only = r.measure(DisparityResult(d, d, None, fine=lambda box, d0: None))
-    assert not coarse_only.valid and "above max_sigma_m" in coarse_only.reason
-    fine = r.measure(DisparityResult(d, d, None, fine=_fine_answer(fb / z, [])))
+    coarse_only = r.measure(DisparityResult(d, d, None, fine=_FineAnswer(None, [])))
+    assert not coarse_only.valid and coarse_only.reason_code is Reason.SIGMA_CEILING
+    fine = r.measure(DisparityResult(d, d, None, fine=_FineAnswer(fb / z, [])))
     assert fine.valid and fine.refined and fine.sigma_m <= WIRE_SIGMA_MAX_M
 
 
@@ -867,28 +873,26 @@ def test_an_oblique_branch_is_read_at_its_near_end_not_across_its_band():
 def test_a_level_object_is_read_by_the_window_within_its_noise(monkeypatch):
     """Noise alone is no slant: on a level branch (22 px, 0.3 px of noise) the window around its
     scattered front pixels sits in its middle and reads as the whole band does, within 0.5 %."""
-    import uav_depth.daemon.ranging as ranging_module
     fb = 350.0 * 0.063
     rng = np.random.default_rng(4)
     d = np.full((360, 640), fb / 2.0, np.float32)
     d[160:190, 213:426] = 22.0 + rng.normal(0, 0.3, (30, 213)).astype(np.float32)
     on = ranger().measure(_result(d))
-    monkeypatch.setattr(ranging_module, "FRONT_WINDOW_MATCHED_PX", 0)
+    monkeypatch.setattr(slant, "FRONT_WINDOW_MATCHED_PX", 0)
     off = ranger().measure(_result(d))
     assert off.distance_m * 0.995 <= on.distance_m <= off.distance_m
 
 
 def test_the_window_never_reads_nearer_than_the_front_nor_farther_than_the_band(monkeypatch):
     """Bounds of the rule, on the oblique branch: between the band's quantile (rule off) and its front."""
-    import uav_depth.daemon.ranging as ranging_module
     d, _ = _oblique_branch(np.random.default_rng(5))
     r = ranger()
     on = r.measure(_result(d))
-    monkeypatch.setattr(ranging_module, "FRONT_WINDOW_MATCHED_PX", 0)
+    monkeypatch.setattr(slant, "FRONT_WINDOW_MATCHED_PX", 0)
     off = r.measure(_result(d))
     fb = 350.0 * 0.063
-    obj = r._object(d[r.roi[1]:r.roi[3], r.roi[0]:r.roi[2]], None,
-                    np.isfinite(d[r.roi[1]:r.roi[3], r.roi[0]:r.roi[2]]), r.px)
+    obj = find(r, d[r.roi[1]:r.roi[3], r.roi[0]:r.roi[2]], None, np.isfinite(d[r.roi[1]:r.roi[3], r.roi[0]:r.roi[2]]),
+               r.px)
     assert off.distance_m > 1.01 * on.distance_m
     assert on.distance_m >= fb / obj.front - 1e-9
 
@@ -971,7 +975,9 @@ def test_confidence_maps_keep_the_left_right_check_where_the_edge_weight_drops()
 
 def test_the_flight_pipeline_returns_the_left_right_check():
     cfg, frame = _flight_frame(1.0, 0)
-    res = DisparityPipeline(load_params(FLIGHT_FILE), refine=False, near=True, fine=True).run(frame.left, frame.right)
+    from uav_depth.core.disparity import flight_pipeline
+
+    res = flight_pipeline(load_params(FLIGHT_FILE)).run(frame.left, frame.right)
     assert res.lr_consistent is not None and res.lr_consistent.shape == res.measured.shape
     matched = np.isfinite(res.measured)
     assert res.lr_consistent[matched].mean() > 0.5 and not res.lr_consistent[~matched].any()
@@ -1018,7 +1024,7 @@ def test_weighted_quantiles_on_the_matchers_grid_equal_the_sorted_definition(ste
         weights = rng.random(n).astype(np.float32)
         weights[rng.random(n) < 0.2] = 0.0
         qs = (0.0, 0.5, 0.9, 1.0, float(rng.random()))
-        assert _weighted_quantiles(values, weights, *qs) == _sorted_quantiles(values, weights, *qs)
+        assert weighted_quantiles(values, weights, *qs) == _sorted_quantiles(values, weights, *qs)
 
 
 @pytest.mark.parametrize("step", [1 / 16, None])
@@ -1030,22 +1036,22 @@ def test_unweighted_quantiles_count_what_unit_weights_sum(step):
         n = int(rng.integers(1, 1500))
         values = (rng.integers(0, 600, n) * step + 2.0 if step else rng.uniform(2.0, 60.0, n)).astype(np.float32)
         qs = (0.0, 0.2, 0.5, 1.0, float(rng.random()))
-        assert _weighted_quantiles(values, None, *qs) == _sorted_quantiles(values, np.ones(n), *qs)
+        assert weighted_quantiles(values, None, *qs) == _sorted_quantiles(values, np.ones(n), *qs)
 
 
 def test_the_median_of_pixel_indices_is_numpys():
     rng = np.random.default_rng(10)
     for n in [1, 2, 3, 4, 5, 64, 65, 1024, 1025, 3000]:
         idx = rng.integers(0, 720, n)
-        assert _median(idx) == float(np.median(idx))
+        assert median(idx) == float(np.median(idx))
 
 
 def test_weighted_quantiles_off_the_grid_fall_back_to_the_sort():
     rng = np.random.default_rng(8)
     values = rng.uniform(5.0, 60.0, 500)          # exact disparities: not on any 1/16 px grid
     weights = rng.random(500)
-    assert _weighted_quantiles(values, weights, 0.1, 0.5) == _sorted_quantiles(values, weights, 0.1, 0.5)
-    assert _weighted_quantiles(values, np.ones(500), 0.5)[0] in values
+    assert weighted_quantiles(values, weights, 0.1, 0.5) == _sorted_quantiles(values, weights, 0.1, 0.5)
+    assert weighted_quantiles(values, np.ones(500), 0.5)[0] in values
 
 
 @pytest.mark.parametrize("distance", [0.27, 0.29])
@@ -1070,3 +1076,45 @@ def test_a_tuned_file_cannot_tune_the_near_pass_away(distance):
     assert truth_m < 0.95 * r.limits.min_distance_m
     m = r.measure(flight_pipeline(tuned).run(left, right))
     assert m.too_close and m.distance_m is None, m
+
+
+def test_every_outcome_carries_its_reason_code_beside_its_text():
+    """A reading without a distance says why as a code (what tests and benchmarks act on) and as a text (what the
+    log shows); a code says whether it is too close, as the reading does. A distance carries neither."""
+    from uav_depth.core.disparity.result import NearCheck
+    from uav_depth.core.ranging import GUARDS, READING
+
+    assert [name for name, _ in READING] == ["near check", "nearest object", "search end", "quality floor", "reading",
+                                             "fine pass", "near end band", "sigma ceiling"]
+    assert [name for name, _ in GUARDS] == ["thin guard"]
+    fb, r = 350.0 * 0.063, ranger()
+    wall = np.full((360, 640), fb / 2.0, np.float32)
+    piled, band, weak, floor = wall.copy(), wall.copy(), np.full_like(wall, np.nan), np.full_like(wall, np.nan)
+    piled[130:230, 250:400] = 63.0
+    band[130:230, 250:400] = 0.97 * 63.0
+    weak[120:150, 213:426] = fb / (1.35 * r.search_end_m)
+    floor[120:150, 213:426] = fb / (1.5 * r.search_end_m)
+    near = np.full((360, 640), np.nan, np.float32)
+    near[120:156, 213:426] = 90.0
+    rng = np.random.default_rng(0)
+    spread = (fb / 2.0 + rng.normal(0, 2.0, (360, 640))).astype(np.float32)
+    cases = {
+        None: (r, _result(wall)),
+        Reason.NO_OBJECT: (r, _result(np.full((360, 640), np.nan, np.float32))),
+        Reason.SEARCH_END: (r, _result(piled)),
+        Reason.NEAR_END_BAND: (r, _result(band)),
+        Reason.WEAK_NEAR: (r, _result(weak)),
+        Reason.QUALITY_FLOOR: (r, _result(floor)),
+        Reason.SIGMA_CEILING: (ranger(RangingConfig(cluster_depth_m=1.0, surface_quantile=0.5)), _result(spread)),
+        Reason.NEAR_PASS: (r, DisparityResult(wall, wall, None, near=NearCheck(near, 63.0))),
+        Reason.THIN_GUARD_TOO_CLOSE: (r, _twig_in_front(twig_d=r.fb / (1.2 * r.limits.min_distance_m))[0]),
+    }
+    for code, (rr, res) in cases.items():
+        m = rr.measure(res)
+        assert m.reason_code is code, (code, m)
+        assert (m.reason is None) == (code is None) == m.valid, m
+        assert code is None or m.too_close == code.too_close, m
+    gate = OutlierGate(max_jump_rel=0.2, confirm_frames=2)
+    gate.too_close(0.3, 0.0)
+    blank = gate.near(r.measure(_result(np.full((360, 640), np.nan, np.float32))), 0.3, 0.1)
+    assert blank.reason_code is Reason.BLANK_AFTER_TOO_CLOSE and blank.too_close and blank.reason_code.too_close
