@@ -178,7 +178,7 @@ def _run_tune(request, args: argparse.Namespace, terminal, stop):
     import signal
     import sys
 
-    from uav_depth.cli.main import EXIT_INTERRUPTED
+    from uav_depth.cli.exit_codes import EXIT_INTERRUPTED
     from uav_depth.tuning.study import TuneInterrupted
     from uav_depth.tuning.tune import tune
 
@@ -252,7 +252,7 @@ def _write_params(d, args: argparse.Namespace, summary: dict, request) -> int:
     """--out (or OUT.rejected.yaml beside it) and the refusal or warning line; the exit status."""
     import sys
 
-    from uav_depth.cli.main import EXIT_ERROR
+    from uav_depth.cli.exit_codes import EXIT_ERROR
     from uav_depth.core.params import save_params
 
     blocked, rejected = d.blocked, d.refused
