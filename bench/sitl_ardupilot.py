@@ -30,10 +30,10 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-# One definition of the SITL harness: the end-to-end test's.
-_spec = importlib.util.spec_from_file_location("sitl_ardupilot", REPO / "tests/cli/test_sitl_ardupilot.py")
+# One definition of the SITL harness: the one the end-to-end test flies.
+_spec = importlib.util.spec_from_file_location("ardupilot_sitl", REPO / "tests/ardupilot_sitl.py")
 h = importlib.util.module_from_spec(_spec)
-sys.modules["sitl_ardupilot"] = h      # dataclasses look their module up there
+sys.modules["ardupilot_sitl"] = h      # dataclasses look their module up there
 _spec.loader.exec_module(h)
 
 
