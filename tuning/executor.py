@@ -10,7 +10,7 @@ Every worker evaluates with OpenCV limited to one thread: the parallelism is
 across candidates (SGBM's default mode is single-threaded anyway), and workers
 must not oversubscribe the cores. The thread count changes no result: the
 multi-threaded modes (sgbm_3way, hh4) split the image into a fixed number of
-stripes (tests/daemon/test_disparity.py checks 1 vs 3 threads; 1, 2 and 4 gave
+stripes (tests/core/test_disparity.py checks 1 vs 3 threads; 1, 2 and 4 gave
 identical maps on the motorcycle pair and on synthetic 256x192..1280x720 frames).
 """
 
