@@ -25,6 +25,7 @@ import os
 import pty
 import resource
 import select
+import signal
 import shutil
 import struct
 import subprocess
@@ -55,12 +56,13 @@ def run_on_terminal(argv: list[str], cwd: str, timeout_s: float, env: dict | Non
     # a terminal window of 120 x 40, as a user's: a fresh pty has none, and the progress bar sizes itself by it
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
     t0 = time.monotonic()
-    proc = subprocess.Popen(argv, cwd=cwd, stdin=slave, stdout=slave, stderr=slave, close_fds=True, env=env)
+    proc = subprocess.Popen(argv, cwd=cwd, stdin=slave, stdout=slave, stderr=slave, close_fds=True, env=env,
+                            start_new_session=True)   # its workers die with it on a timeout
     os.close(slave)
     chunks: list[tuple[float, str]] = []
     while True:
         if time.monotonic() - t0 > timeout_s:
-            proc.kill()
+            os.killpg(proc.pid, signal.SIGKILL)
         ready, _, _ = select.select([master], [], [], 0.1)
         if ready:
             try:
