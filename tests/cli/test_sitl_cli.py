@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import signal
 import socket
+import statistics
 import subprocess
 import sys
 import time
@@ -106,10 +107,14 @@ def test_without_an_autopilot_the_scripted_approach_flies(tmp_path):
     with open(tmp_path / "truth.csv") as f:
         rows = list(csv.DictReader(f))
     assert rows and all(r["north_m"] == "" for r in rows)          # no autopilot pose to log
-    # The rig moved along the script: the logged truth falls from near the start (1.5 m) toward the stop
-    # (0.8 m), never below it. On two loaded cores the first measurement may come late, hence the truth.
+    # The rig moved along the script: the logged truth falls from the start (1.5 m) toward the stop (0.8 m),
+    # never below it, at the scripted 0.2 m/s by the frames' own capture stamps (on loaded cores the first
+    # frame may come late, so where it starts is not judged, only how it moves).
     truths = [float(r["truth_m"]) for r in rows if r["truth_m"]]
-    assert 1.2 < truths[0] <= 1.5 and 0.79 <= min(truths) < 1.25, truths
+    assert truths[0] <= 1.5 and 0.79 <= min(truths) < 1.25, truths
+    moving = [(float(r["time_s"]), float(r["truth_m"])) for r in rows if r["truth_m"] and float(r["truth_m"]) > 0.85]
+    speeds = [(a - b) / (tb - ta) for (ta, a), (tb, b) in zip(moving, moving[1:]) if tb - ta > 0.1]
+    assert speeds and 0.15 <= statistics.median(speeds) <= 0.25, (moving, speeds)
     assert all(b <= a + 1e-6 for a, b in zip(truths, truths[1:])), truths
     measured = [r for r in rows if r["error_pct"]]
     assert measured and all(abs(float(r["error_pct"])) < 5.0 for r in measured), [r["error_pct"] for r in measured]
