@@ -34,5 +34,5 @@ from uav_depth.core.ranging.measurement import Measurement, Reason
 from uav_depth.core.ranging.ranger import CHECKS, GUARDS, READING, Ranger
 
 __all__ = ["CHECKS", "GUARDS", "NEAR_END_BAND", "OutlierGate", "PIXEL_LOCKING_SIGMA_PX", "READING", "RangeLimits",
-           "Ranger", "RangingConfig", "Reason", "Measurement", "THIN_GUARD_M2", "WEAK_TOO_CLOSE_FACTOR", "WIRE_SIGMA_MAX_M",
-           "default_roi", "resolve_roi"]
+           "Ranger", "RangingConfig", "Reason", "Measurement", "THIN_GUARD_M2", "WEAK_TOO_CLOSE_FACTOR",
+           "WIRE_SIGMA_MAX_M", "default_roi", "resolve_roi"]
