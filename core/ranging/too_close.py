@@ -5,7 +5,9 @@ evidence (rules 1, 3 and 4, from the near pass of :mod:`uav_depth.core.disparity
 an object piled at the search's end (rule 2) and a reading in the search's last
 :data:`~.limits.NEAR_END_BAND` (rule 8). Rule 5 is the outlier gate's
 (:meth:`.gate.OutlierGate.near`), rule 6 the thin guard's (:mod:`.thin_guard`), rule 7
-the quality floor's (:mod:`.floors`).
+the quality floor's (:mod:`.floors`). Over every rule but 5 (whose evidence is the too-close frame before),
+the noise floor (:func:`noise_floor`): a too-close outcome on a region without texture above the sensor
+noise is no measurement.
 """
 
 from __future__ import annotations
@@ -44,8 +46,8 @@ TEXTURED_SHARE = 0.01
 #: Every rule: a frame is too close only while at least this share of the ROI is textured in the left view
 #: (:func:`uav_depth.core.disparity.near.left_textured`, the same gradient as rule 4's). On a featureless
 #: surface SGBM matches the sensor noise, left-right consistent, anywhere in the search: a blank scene with noise
-#: of 1-8 grey levels fired rules 1, 3 and 6, and is 0-0.3 % textured; every frame of a branch inside the minimum
-#: range is 11-89 % (docs/ranging.md, *Too close*, noise floor).
+#: of 1-8 grey levels fired rules 1, 3 and 6, and is 0-0.5 % textured; every frame of a branch inside the minimum
+#: range is 12-88 % (docs/ranging.md, *Too close*, noise floor).
 SIGNAL_SHARE = TEXTURED_SHARE
 
 
