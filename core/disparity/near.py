@@ -58,13 +58,22 @@ NEAR_FILTERS = {"sgbm.uniqueness_ratio": 10, "sgbm.disp12_max_diff": 1, "sgbm.pr
 TEXTURE_GRADIENT = 12.0
 
 
+def textured_view(view_m: np.ndarray) -> np.ndarray:
+    """bool map of one view of the near pass's prepared (grey, coarse) crop: True where it is textured."""
+    g = view_m.astype(np.float32)
+    return cv2.magnitude(cv2.Sobel(g, cv2.CV_32F, 1, 0), cv2.Sobel(g, cv2.CV_32F, 0, 1)) > TEXTURE_GRADIENT
+
+
 def textured(left_m: np.ndarray, right_m: np.ndarray) -> np.ndarray:
     """uint8 map of the near pass's prepared (grey, coarse) crop: 1 where both views are textured."""
-    def grad(g: np.ndarray) -> np.ndarray:
-        g = g.astype(np.float32)
-        return cv2.magnitude(cv2.Sobel(g, cv2.CV_32F, 1, 0), cv2.Sobel(g, cv2.CV_32F, 0, 1))
+    return (textured_view(left_m) & textured_view(right_m)).astype(np.uint8)
 
-    return ((grad(left_m) > TEXTURE_GRADIENT) & (grad(right_m) > TEXTURE_GRADIENT)).astype(np.uint8)
+
+def left_textured(left_m: np.ndarray, right_m: np.ndarray) -> np.ndarray:
+    """uint8 map of the near pass's prepared (grey, coarse) crop: 1 where the left view is textured. The left
+    view is the one every match starts from: a thin object against a blank background is textured there,
+    while its right view's pixels at the same place are the background's."""
+    return textured_view(left_m).astype(np.uint8)
 
 
 def max_disparity_px(params: StereoParams) -> float:
@@ -134,7 +143,8 @@ class NearStage:
         """``result`` with the near check of this pair (``near``) and its time (``timings_ms["near"]``)."""
         laps = Laps()
         measured, confidence, consistent, tex = self.maps(left, right)
-        check = NearCheck(measured, self.main_max_disparity_px, tex, confidence, consistent)
+        check = NearCheck(measured, self.main_max_disparity_px, None if tex is None else tex[textured], confidence,
+                          consistent, None if tex is None else tex[left_textured])
         laps.lap("near")
         return DisparityResult(result.disparity, result.measured, result.confidence, result.warning,
                                {**result.timings_ms, **laps.ms}, near=check, fine=result.fine,
@@ -160,15 +170,17 @@ class NearStage:
 
     def maps(self, left: np.ndarray, right: np.ndarray):
         """(measured, confidence, left-right check, textured), each (H, W) at the input's resolution
-        (:class:`.result.DisparityResult`); confidence and textured are callables computed when first asked
-        for (:class:`.result.NearCheck`), or None."""
+        (:class:`.result.DisparityResult`); confidence is a callable computed when first asked for
+        (:class:`.result.NearCheck`), or None; textured maps :func:`textured` and :func:`left_textured` to
+        such callables, or is None."""
         check_pair(left, right)
         h, w = left.shape[:2]
         rows, pad_l, pad_r, stage = self.for_size(w, h)
         if rows is None:
             got = stage.run(left, right)
             win, prep, conf = got.window, got.prepared, got.later_confidence
-            tex = None if win is None or prep is None else functools.partial(_textured_map, win, prep, (h, w))
+            tex = None if win is None or prep is None else {
+                fn: functools.partial(_textured_map, win, prep, (h, w), fn) for fn in (textured, left_textured)}
             return (got.result.measured, None if conf is None else functools.cache(conf), got.result.lr_consistent,
                     tex)
         left, right = pad_views(grey(left[rows]), grey(right[rows]), pad_l, pad_r)
@@ -184,8 +196,9 @@ class NearStage:
             band[band > np.arange(reach, dtype=np.float32)] = np.nan
         conf = None if later is None else functools.cache(lambda: _at_rows(later()[:, cols], rows, h, 0.0))
         lr = None if res.lr_consistent is None else _at_rows(res.lr_consistent[:, cols], rows, h, False)
-        tex = None if win is None or prep is None else (
-            lambda: _at_rows(_textured_map(win, prep, left.shape[:2])[:, cols], rows, h, False))
+        tex = None if win is None or prep is None else {
+            fn: functools.partial(_padded_textured_map, win, prep, left.shape[:2], fn, cols, rows, h)
+            for fn in (textured, left_textured)}
         return measured, conf, lr, tex
 
 
@@ -198,8 +211,15 @@ def _at_rows(band: np.ndarray, rows: slice, height: int, fill) -> np.ndarray:
     return out
 
 
-def _textured_map(win: Window, prep: Prepared, shape: tuple[int, int]) -> np.ndarray:
-    """(H, W) bool: :func:`textured` of a pass's prepared views, at input resolution under its region."""
+def _textured_map(win: Window, prep: Prepared, shape: tuple[int, int], fn=textured) -> np.ndarray:
+    """(H, W) bool: ``fn`` (:func:`textured` or :func:`left_textured`) of a pass's prepared views, at input
+    resolution under its region."""
     tex = np.zeros(shape, bool)
-    tex[win.outer()] = upsample(win, textured, prep.left_m, prep.right_m, interpolation=cv2.INTER_NEAREST) > 0
+    tex[win.outer()] = upsample(win, fn, prep.left_m, prep.right_m, interpolation=cv2.INTER_NEAREST) > 0
     return tex
+
+
+def _padded_textured_map(win: Window, prep: Prepared, shape: tuple[int, int], fn, cols: slice, rows: slice,
+                         height: int) -> np.ndarray:
+    """:func:`_textured_map` of the padded rows' pass, put back at the input's ``rows`` and ``cols``."""
+    return _at_rows(_textured_map(win, prep, shape, fn)[:, cols], rows, height, False)

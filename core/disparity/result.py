@@ -36,6 +36,10 @@ class NearCheck:
     #: (H, W) bool: the near pass's left-right check alone (layout of ``DisparityResult.lr_consistent``), to
     #: filter ``disparity`` with; None without its right matcher.
     consistent: np.ndarray | None = None
+    #: ``left_textured()``: (H, W) bool, the left view textured here at the near pass's scale
+    #: (:func:`.near.left_textured`), False outside the near pass's region; computed when first asked for
+    #: (ranging asks only for a frame it would report too close). None when not available.
+    left_textured: Callable[[], np.ndarray] | None = None
 
 
 @dataclass(frozen=True)

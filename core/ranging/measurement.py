@@ -32,6 +32,9 @@ class Reason(enum.Enum):
     NEAR_END_BAND = "in the search's last band, nearer than the minimum range"
     #: No significant object among the confident measured pixels.
     NO_OBJECT = "no significant object"
+    #: A too-close rule fired, but the region holds no texture above the sensor noise: a featureless surface
+    #: (sky, a bare wall) whose matches are the noise's (:func:`~.too_close.noise_floor`).
+    FEATURELESS = "too-close evidence on a featureless region: sensor noise"
     #: The signal quality is below ``min_quality``.
     QUALITY_FLOOR = "signal quality below min_quality"
     #: The reading's sigma is above ``max_sigma_m``.

@@ -2,7 +2,8 @@
 
 :data:`READING` finds the confident reading; the first stage that decides the frame
 (too close, no measurement) ends it. :data:`GUARDS` then act on whatever was
-decided, and may only make it nearer or too close, never farther. The rules each
+decided, and may only make it nearer or too close, never farther. :data:`CHECKS` last:
+a too-close outcome whose evidence is sensor noise is no measurement. The rules each
 stage applies, and the measurements behind their thresholds, are on docs/ranging.md.
 """
 
@@ -19,7 +20,7 @@ from uav_depth.core.ranging.nearest import usable
 from uav_depth.core.ranging.reading import nearest_object, read
 from uav_depth.core.ranging.setup import Setup
 from uav_depth.core.ranging.thin_guard import thin_guard
-from uav_depth.core.ranging.too_close import at_search_end, near_check, near_end_band
+from uav_depth.core.ranging.too_close import at_search_end, near_check, near_end_band, noise_floor
 
 #: A reading stage decides the frame (returns its measurement) or leaves it to the next stage (None).
 ReadingStage = Callable[[Setup, RangingFrame], "Measurement | None"]
@@ -40,6 +41,10 @@ READING: tuple[tuple[str, ReadingStage], ...] = (
 #: Then, on whatever was decided: may make it nearer or too close (rule 6), never farther.
 GUARDS: tuple[tuple[str, Guard], ...] = (
     ("thin guard", thin_guard),
+)
+#: Last, on a too-close outcome of any rule: its evidence must survive the sensor noise, or it is no measurement.
+CHECKS: tuple[tuple[str, Guard], ...] = (
+    ("noise floor", noise_floor),
 )
 
 
@@ -66,6 +71,6 @@ class Ranger(Setup):
         else:
             m = frame.reading
         assert m is not None
-        for _, guard in GUARDS:
+        for _, guard in (*GUARDS, *CHECKS):
             m = guard(self, m, result)
         return m

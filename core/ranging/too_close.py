@@ -5,7 +5,9 @@ evidence (rules 1, 3 and 4, from the near pass of :mod:`uav_depth.core.disparity
 an object piled at the search's end (rule 2) and a reading in the search's last
 :data:`~.limits.NEAR_END_BAND` (rule 8). Rule 5 is the outlier gate's
 (:meth:`.gate.OutlierGate.near`), rule 6 the thin guard's (:mod:`.thin_guard`), rule 7
-the quality floor's (:mod:`.floors`).
+the quality floor's (:mod:`.floors`). Over every rule but 5 (whose evidence is the too-close frame before),
+the noise floor (:func:`noise_floor`): a too-close outcome on a region without texture above the sensor
+noise is no measurement.
 """
 
 from __future__ import annotations
@@ -41,6 +43,12 @@ BLANK_VALID_FRACTION = 0.1
 #: other view lies outside the right image. Such frames are 1.8-53 % textured and 0-7 % matched
 #: (docs/ranging.md, *Too close*, rule 4).
 TEXTURED_SHARE = 0.01
+#: Every rule: a frame is too close only while at least this share of the ROI is textured in the left view
+#: (:func:`uav_depth.core.disparity.near.left_textured`, the same gradient as rule 4's). On a featureless
+#: surface SGBM matches the sensor noise, left-right consistent, anywhere in the search: a blank scene with noise
+#: of 1-8 grey levels fired rules 1, 3 and 6, and is 0-0.5 % textured; every frame of a branch inside the minimum
+#: range is 12-88 % (docs/ranging.md, *Too close*, noise floor).
+SIGNAL_SHARE = TEXTURED_SHARE
 
 
 def near_evidence(s: Setup, result: DisparityResult) -> tuple[Reason, str] | None:
@@ -146,3 +154,19 @@ def near_end_band(s: Setup, f: RangingFrame) -> Measurement | None:
                               f"falsely): nearer than the minimum range {s.limits.min_distance_m:.3f} m",
                        reason_code=Reason.NEAR_END_BAND)
     return None
+
+
+def noise_floor(s: Setup, m: Measurement, result: DisparityResult) -> Measurement:
+    """Check: ``m``, or no measurement when it is too close but under :data:`SIGNAL_SHARE` of the ROI is textured
+    in the left view: no rule's evidence survives the sensor noise (the region is featureless, so its matches
+    are the noise's). Asks for the texture map only on a too-close frame; without one, ``m``."""
+    near = result.near
+    if not m.too_close or near is None or near.left_textured is None:
+        return m
+    x0, y0, x1, y1 = s.roi
+    share = float(near.left_textured()[y0:y1, x0:x1].mean())
+    if share >= SIGNAL_SHARE:
+        return m
+    return Measurement(None, n_px=m.n_px, valid_fraction=m.valid_fraction, reason_code=Reason.FEATURELESS,
+                       reason=f"{share:.1%} of the ROI is textured in the left view, under {SIGNAL_SHARE:.0%}: the "
+                              f"evidence for too close ({m.reason}) is the sensor noise of a featureless surface")

@@ -12,11 +12,12 @@ def test_every_outcome_carries_its_reason_code_beside_its_text():
     """A reading without a distance says why as a code (what tests and benchmarks act on) and as a text (what the
     log shows); a code says whether it is too close, as the reading does. A distance carries neither."""
     from uav_depth.core.disparity.result import NearCheck
-    from uav_depth.core.ranging import GUARDS, READING
+    from uav_depth.core.ranging import CHECKS, GUARDS, READING
 
     assert [name for name, _ in READING] == ["near check", "nearest object", "search end", "quality floor", "reading",
                                              "fine pass", "near end band", "sigma ceiling"]
     assert [name for name, _ in GUARDS] == ["thin guard"]
+    assert [name for name, _ in CHECKS] == ["noise floor"]
     fb, r = 350.0 * 0.063, ranger()
     wall = np.full((360, 640), fb / 2.0, np.float32)
     piled, band, weak, floor = wall.copy(), wall.copy(), np.full_like(wall, np.nan), np.full_like(wall, np.nan)
@@ -37,6 +38,8 @@ def test_every_outcome_carries_its_reason_code_beside_its_text():
         Reason.QUALITY_FLOOR: (r, _result(floor)),
         Reason.SIGMA_CEILING: (ranger(RangingConfig(cluster_depth_m=1.0, surface_quantile=0.5)), _result(spread)),
         Reason.NEAR_PASS: (r, DisparityResult(wall, wall, None, near=NearCheck(near, 63.0))),
+        Reason.FEATURELESS: (r, DisparityResult(wall, wall, None, near=NearCheck(
+            near, 63.0, left_textured=lambda: np.zeros((360, 640), bool)))),
         Reason.THIN_GUARD_TOO_CLOSE: (r, _twig_in_front(twig_d=r.fb / (1.2 * r.limits.min_distance_m))[0]),
     }
     for code, (rr, res) in cases.items():
