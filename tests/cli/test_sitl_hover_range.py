@@ -126,8 +126,8 @@ def test_hovers_inside_the_stated_range_read_within_two_sigma(hovers):
 @pytest.mark.timeout(240)
 def test_a_branch_beyond_the_stated_range_is_not_sent_as_a_distance(daemon, hovers):
     """Judged at the object's median depth, the fine pass's near tail no longer brings a branch beyond the range
-    inside it (a whole-pixel false match, whose median is on the false match too, still can: docs/ranging.md,
-    *Precision at the object's body*)."""
+    inside it (a whole-pixel false match, whose median is on the false match too, still can:
+    docs/measurements/ranging-precision-at-body.md)."""
     stated_m = daemon[1].ranger.limits.stated_max_m
     assert BEYOND_M[0] > 1.02 * stated_m
     for d in BEYOND_M:
