@@ -30,8 +30,7 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-# One definition of the SITL harness: the end-to-end test's (it imports tests/sitl_bounds.py).
-sys.path.insert(0, str(REPO / "tests"))
+# One definition of the SITL harness: the end-to-end test's.
 _spec = importlib.util.spec_from_file_location("sitl_ardupilot", REPO / "tests/cli/test_sitl_ardupilot.py")
 h = importlib.util.module_from_spec(_spec)
 sys.modules["sitl_ardupilot"] = h      # dataclasses look their module up there

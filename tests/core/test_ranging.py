@@ -655,36 +655,6 @@ def test_the_range_ends_where_the_sigma_floor_passes_what_the_wire_carries():
     assert ranger(RangingConfig(cluster_depth_m=1.0, surface_quantile=0.5, max_sigma_m=1.0)).measure(_result(d)).valid
 
 
-def _branch_with_a_near_tail(body_m: float, tail_m: float, tail_share: float = 0.25):
-    """A level branch across the ROI at ``body_m`` in front of a wall at 8 m, ``tail_share`` of its pixels
-    (every fourth row) matched at ``tail_m``: SGBM's pixel locking, part of a surface a fraction of a pixel near."""
-    fb = 350.0 * 0.063
-    d = np.full((360, 640), fb / 8.0, np.float32)
-    d[160:200, 213:426] = fb / body_m
-    d[160:200:round(1 / tail_share), 213:426] = fb / tail_m
-    return d
-
-
-def test_the_precision_is_judged_at_the_object_s_body_not_at_its_near_tail():
-    """The reading leaves a fifth of the object nearer; with a quarter of its pixels locked nearer, it reads that
-    tail. Beyond the stated range (3.49 m), the branch at 3.6 m would go out as 3.40 m within the wire's sigma:
-    the precision is judged at its median depth, and it is no measurement. Inside the range nothing changes:
-    the same tail on a branch at 3.3 m is read as before, with the reading's own sigma."""
-    from uav_depth.core.ranging import WIRE_SIGMA_MAX_M
-
-    r = ranger(RangingConfig(max_distance_m=10.0))
-    assert 3.3 < r.limits.stated_max_m < 3.5
-    beyond = r.measure(_result(_branch_with_a_near_tail(3.6, 3.4)))
-    assert not beyond.valid and not beyond.too_close and beyond.reason_code is Reason.SIGMA_CEILING
-    assert "at the object's median depth 3.600 m above max_sigma_m" in beyond.reason
-    assert "would read 3.400 m" in beyond.reason
-    inside = r.measure(_result(_branch_with_a_near_tail(3.3, 3.15)))
-    assert inside.valid and inside.distance_m == pytest.approx(3.15, rel=1e-4)
-    assert inside.body_px == pytest.approx(350.0 * 0.063 / 3.3, rel=1e-4)
-    assert inside.sigma_m == pytest.approx(3.15 ** 2 / (350.0 * 0.063) / math.sqrt(12.0), rel=1e-3)
-    assert inside.sigma_m <= WIRE_SIGMA_MAX_M
-
-
 # -- the fine pass: full-resolution re-match of the ranged object ---------------------------------------------------
 
 HALF_FINE = PARAMS.replace(**{"compute.scale": 0.5, "compute.fine_disparities": 32})
