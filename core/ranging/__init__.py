@@ -12,7 +12,7 @@ not WLS fill-in), and only where the left-right confidence is at least
   sigma_Z = Z^2/(f*B) * sigma_d, with :mod:`.slant` (a slanted object read at its near end);
 * :mod:`.too_close`: too close by the near check, at the search's end, in its last band, and the
   noise floor every too-close outcome must pass;
-* :mod:`.floors`: the quality floor (and rule 7) and the sigma ceiling;
+* :mod:`.floors`: the quality floor (and rule 7) and the sigma ceiling (judged at the object's body);
 * :mod:`.fine`: the fine pass (``compute.fine_disparities``): never farther than the coarse
   pass saw on a fine match that does not hold up;
 * :mod:`.thin_guard`: matched pixels that pass the left-right check but not ``min_confidence``

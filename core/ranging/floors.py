@@ -36,12 +36,32 @@ def quality_floor(s: Setup, f: RangingFrame) -> Measurement | None:
 
 
 def sigma_ceiling(s: Setup, f: RangingFrame) -> Measurement | None:
-    """Stage: a reading less precise than ``max_sigma_m`` is no measurement (by default the most DISTANCE_SENSOR's
-    covariance can carry)."""
+    """Stage: a reading less precise than ``max_sigma_m`` (by default the most DISTANCE_SENSOR's covariance can
+    carry), judged at the object's body (:func:`imprecise`), is no measurement."""
     m = f.reading
     assert m is not None and m.sigma_m is not None and m.distance_m is not None
-    if m.sigma_m > s.config.max_sigma_m:
-        return replace(m, distance_m=None, sigma_m=None, refined=False,
-                       reason=f"sigma {m.sigma_m:.3f} m above max_sigma_m {s.config.max_sigma_m:.3f} m "
-                              f"(the object would read {m.distance_m:.3f} m)", reason_code=Reason.SIGMA_CEILING)
+    why = imprecise(s, m)
+    if why is not None:
+        return replace(m, distance_m=None, sigma_m=None, refined=False, reason=why, reason_code=Reason.SIGMA_CEILING)
     return None
+
+
+def imprecise(s: Setup, m: Measurement) -> str | None:
+    """Why the reading ``m`` is too imprecise to send (``ranging.max_sigma_m``), or None: the one precision rule,
+    for the confident reading and the thin guard's.
+
+    The precision is judged at the object's body, its median disparity (``m.body_px``), not at the reading,
+    which leaves ``surface_quantile`` of the object nearer: toward the range's end that share is the near tail
+    of the matching noise (the fine pass locks part of a level branch's pixels up to a whole pixel nearer, and
+    its band, a fraction of a pixel deep there, holds little else), so judged at the reading a branch beyond
+    the range went out whenever its tail read inside it, 10-55 cm near (docs/ranging.md, *The nearest
+    significant object*). The sigma sent stays the reading's own.
+    """
+    assert m.distance_m is not None and m.disparity_px is not None and m.sigma_px is not None
+    body = m.disparity_px if m.body_px is None else min(m.body_px, m.disparity_px)
+    z_body = s.fb / body
+    sigma_body = z_body * z_body / s.fb * m.sigma_px
+    if sigma_body <= s.config.max_sigma_m:
+        return None
+    return (f"sigma {sigma_body:.3f} m at the object's median depth {z_body:.3f} m above max_sigma_m "
+            f"{s.config.max_sigma_m:.3f} m (the object would read {m.distance_m:.3f} m)")

@@ -37,9 +37,10 @@ class Reason(enum.Enum):
     FEATURELESS = "too-close evidence on a featureless region: sensor noise"
     #: The signal quality is below ``min_quality``.
     QUALITY_FLOOR = "signal quality below min_quality"
-    #: The reading's sigma is above ``max_sigma_m``.
+    #: The reading's sigma, taken at the object's median depth (its body), is above ``max_sigma_m``.
     SIGMA_CEILING = "sigma above max_sigma_m"
-    #: The thin guard's nearer object is not precise enough to send (nor is the farther reading it replaces).
+    #: The thin guard's nearer object is not precise enough to send, judged as the reading is (nor is the farther
+    #: reading it replaces).
     THIN_GUARD_SIGMA = "thin guard: a nearer object, sigma above max_sigma_m"
 
     @property
@@ -65,7 +66,8 @@ class Measurement:
     ``too_close``: an object is nearer than the minimum range (``distance_m`` is then
     None: no distance was measured, but the obstacle is nearer than ``min_distance_m``);
     ``refined``: the distance, sigma, box and disparity come from the fine pass; ``guarded``: from the
-    thin guard (``ranging.thin_guard_m2``), or it found the object too close.
+    thin guard (``ranging.thin_guard_m2``), or it found the object too close; ``body_px``: the object's
+    median disparity (input px), its body, which ``disparity_px`` leaves ``surface_quantile`` of nearer.
     """
 
     distance_m: float | None
@@ -81,6 +83,7 @@ class Measurement:
     refined: bool = False
     guarded: bool = False
     reason_code: Reason | None = None
+    body_px: float | None = None
 
     @property
     def valid(self) -> bool:

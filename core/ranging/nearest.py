@@ -31,7 +31,8 @@ CLUSTER_MARGIN_PX = 1.0
 class NearestObject:
     """The nearest significant object of one map: ``front`` disparity, reported disparity ``d`` and its
     spread ``sigma_d`` (input px), pixel count ``n`` (input px), mean confidence, the band's lower
-    disparity ``lower``, and ``bbox`` (x0, y0, x1, y1) in the map's own coordinates."""
+    disparity ``lower``, ``bbox`` (x0, y0, x1, y1) in the map's own coordinates, and the band's median
+    disparity ``median`` (input px), the object's body."""
 
     front: float
     d: float
@@ -40,6 +41,7 @@ class NearestObject:
     mean_conf: float
     lower: float
     bbox: tuple[int, int, int, int]
+    median: float
 
 
 def shift(box: tuple[int, int, int, int], dx: int, dy: int) -> tuple[int, int, int, int]:
@@ -109,7 +111,8 @@ def find(s: Setup, disp: np.ndarray, conf: np.ndarray | None, ok: np.ndarray, px
     sigma_d = max(1.4826 * weighted_median(np.abs(v - med), w), PIXEL_LOCKING_SIGMA_PX * px)
     d = slanted_surface(cfg, inbox, dbox, wbox, front, d, front if slant_cap is None else min(front, slant_cap),
                         px if count_px is None else count_px)
-    return NearestObject(front, d, sigma_d, int(v.size), float(w.mean()) if w is not None else 1.0, lower, bbox)
+    return NearestObject(front, d, sigma_d, int(v.size), float(w.mean()) if w is not None else 1.0, lower, bbox,
+                         med)
 
 
 def reading(s: Setup, obj: NearestObject, bbox: tuple[int, int, int, int], quality: int, valid_fraction: float,
@@ -118,4 +121,4 @@ def reading(s: Setup, obj: NearestObject, bbox: tuple[int, int, int, int], quali
     z = s.fb / obj.d
     return Measurement(distance_m=z, sigma_m=z * z / s.fb * obj.sigma_d, quality=quality, bbox=bbox,
                        disparity_px=obj.d, sigma_px=obj.sigma_d, n_px=obj.n, valid_fraction=valid_fraction,
-                       refined=refined)
+                       refined=refined, body_px=obj.median)

@@ -36,7 +36,7 @@ READING: tuple[tuple[str, ReadingStage], ...] = (
     ("reading", read),                     # Z = f*B/d, sigma_Z
     ("fine pass", fine_pass),              # re-measured at full resolution, never farther on a weak match
     ("near end band", near_end_band),      # too close: in the search's last 5 % (rule 8)
-    ("sigma ceiling", sigma_ceiling),      # no measurement less precise than max_sigma_m
+    ("sigma ceiling", sigma_ceiling),      # no measurement less precise than max_sigma_m at the object's body
 )
 #: Then, on whatever was decided: may make it nearer or too close (rule 6), never farther.
 GUARDS: tuple[tuple[str, Guard], ...] = (

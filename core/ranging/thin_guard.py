@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 
 from uav_depth.core.disparity import DisparityResult
+from uav_depth.core.ranging.floors import imprecise
 from uav_depth.core.ranging.limits import WEAK_TOO_CLOSE_FACTOR
 from uav_depth.core.ranging.measurement import Measurement, Reason
 from uav_depth.core.ranging.nearest import CLUSTER_MARGIN_PX, NearestObject, find, reading, shift
@@ -83,10 +84,10 @@ def thin_guard(s: Setup, m: Measurement, result: DisparityResult) -> Measurement
         return m
     quality = int(min(100, max(2, round(100.0 * float(ok.mean())))))
     g_m = replace(reading(s, g, shift(g.bbox, x0, y0), quality, m.valid_fraction), guarded=True)
-    if g_m.sigma_m > cfg.max_sigma_m:      # nearer than m, but not precise: neither is sent
-        return replace(g_m, distance_m=None, sigma_m=None,
-                       reason=f"thin guard: a nearer object reads {z:.3f} m with sigma {g_m.sigma_m:.3f} m above "
-                              f"max_sigma_m {cfg.max_sigma_m:.3f} m", reason_code=Reason.THIN_GUARD_SIGMA)
+    why = imprecise(s, g_m)
+    if why is not None:      # nearer than m, but not precise: neither is sent
+        return replace(g_m, distance_m=None, sigma_m=None, reason=f"thin guard: a nearer object: {why}",
+                       reason_code=Reason.THIN_GUARD_SIGMA)
     return g_m
 
 

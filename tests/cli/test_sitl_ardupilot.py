@@ -76,9 +76,10 @@ def test_avoidance_stops_the_approach_on_the_daemons_readings(tmp_path):
     # (No lag where avoidance slowed the vehicle before it reached 90 % of the speed: Loiter brakes early
     # once the branch is seen from far enough.)
     assert any(r.reading_lag_m is not None for r in slow), results
+    from sitl_bounds import reading_lag_bounds      # tests/: one definition, shared with test_sitl_hover_range
     for r in slow:
-        assert r.reading_lag_m is None or \
-            -0.05 * 2.5 - 0.01 <= r.reading_lag_m <= r.speed * (max_age_s + 0.2) + 0.05 * 2.5 + 0.01, r
+        lo, hi = reading_lag_bounds(r.speed, max_age_s)
+        assert r.reading_lag_m is None or lo <= r.reading_lag_m <= hi, r
     # Avoidance held the slowest approach short of the surface in both modes, on those readings alone
     # (docs/sitl.md: the highest speed at which it holds, and why; faster ones are recorded above).
     assert all(r.closest_m >= 0.3 for r in results if r.speed <= HOLDS_MPS), results
