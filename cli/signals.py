@@ -1,9 +1,9 @@
 """The daemon's signal handlers, installed first thing (before any slow import) and only setting events.
 
 ``uav-depth run`` and ``sitl`` take seconds to import NumPy, OpenCV and pymavlink
-and to open the camera. A signal in that window used to meet Python's defaults:
-SIGHUP and SIGUSR1 killed the process silently, SIGINT gave a KeyboardInterrupt
-traceback, SIGTERM exited -15. :func:`install` runs in :func:`uav_depth.cli.main.entry`
+and to open the camera. A signal in that window would meet Python's defaults:
+SIGHUP and SIGUSR1 kill the process silently, SIGINT gives a KeyboardInterrupt
+traceback, SIGTERM exits -15. :func:`install` runs in :func:`uav_depth.cli.main.entry`
 before the subcommand table is even built, and then unblocks the signals: the systemd
 unit starts the daemon with them blocked (``env --block-signal=HUP,INT,TERM,USR1``), so
 one sent while the interpreter itself starts waits for the handlers instead of killing
