@@ -59,9 +59,11 @@ def refused_at_start(name: str, want: int, message: str, params: bytes | None = 
             lines, err = _error_lines(daemon.stderr(), command), daemon.stderr()
             good = code == want and len(lines) == 1 and re.search(message, lines[0]) and "Traceback" not in err
             ok &= bool(good)
-            said = lines[0].split(": error: ", 1)[1][:90] if lines else (err.strip().splitlines() or ["-"])[-1][:90]
+            said = lines[0].split(": error: ", 1)[1] if lines else (err.strip().splitlines() or ["-"])[-1]
+            said = said.replace(f"{d}/", "")[:90]
             seen.append(f"{command}: exit {code} after {time.monotonic() - t0:.1f} s, {len(lines)} line(s): {said}")
         return [Row(name, f"exit {want}, one line /{message}/, no traceback", "; ".join(seen), ok)]
+    case.__doc__ = name
     return case
 
 
@@ -86,7 +88,8 @@ def bad_set_key(d: Path) -> list[Row]:
                                str(d / "log")], capture_output=True, text=True, timeout=180)
         lines = _error_lines(proc.stderr, command)
         ok &= proc.returncode == EXIT_CONFIG and len(lines) == 1 and "Traceback" not in proc.stderr
-        seen.append(f"{command}: exit {proc.returncode}, {len(lines)} line(s)" + (f": {lines[0][:70]}" if lines else ""))
+        said = f": {lines[0][:70]}" if lines else ""
+        seen.append(f"{command}: exit {proc.returncode}, {len(lines)} line(s){said}")
     return [Row("--set nosuch.key=1 (evaluate, tune)", f"exit {EXIT_CONFIG}, one line, no traceback", "; ".join(seen),
                 ok)]
 

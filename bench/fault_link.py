@@ -146,7 +146,8 @@ def tcp_stall(d: Path) -> list[Row]:
         daemon = _daemon(d / f"tcp-{answers}", f"tcpin:127.0.0.1:{port}")
         peer = _tcp_peer(daemon, port, answers)
         try:
-            daemon.wait_for(lambda: len(peer.of("HEARTBEAT")) >= 3 and (not answers or len(peer.of("DISTANCE_SENSOR")) >= 10),
+            daemon.wait_for(lambda: len(peer.of("HEARTBEAT")) >= 3
+                            and (not answers or len(peer.of("DISTANCE_SENSOR")) >= 10),
                             "3 HEARTBEAT (and 10 readings, if it answers TIMESYNC)")
             peer.pause()
             time.sleep(STALL_S)                                # the fault itself: a peer that reads nothing
