@@ -201,14 +201,17 @@ class Row:
 def judge(cond: Condition, w: Window) -> Row:
     """The row of ``cond`` against what arrived in its window.
 
-    Every HEARTBEAT in it carries the row's state, except a CRITICAL one while the newest reading was
-    past its age (stale: a condition of its own) in a condition that sends; a window of a HEARTBEAT
-    period or longer holds at least one.
+    Every HEARTBEAT in it carries the row's state, except a CRITICAL one while the daemon was stale (a
+    condition of its own, which a loaded machine may reach between frames): in a condition that sends,
+    the newest reading was past its age then; in any, the daemon said "blind (stale)" in the window.
+    A window of a HEARTBEAT period or longer holds at least one.
     """
     exp = expected(cond)
     fits = sum(reading_fits(cond, m) for m in w.readings)
     distance_ok = (fits == len(w.readings) > 0) if exp.sends else not w.readings
-    excused = [cond.sends and st == "critical" and stale for st, stale in zip(w.states, w.stale)]
+    said_stale = Condition.STALE.statustext[0] in w.texts
+    excused = [st == "critical" != exp.heartbeat and (said_stale or cond.sends and stale)
+               for st, stale in zip(w.states, w.stale)]
     own = [st for st, x in zip(w.states, excused) if not x]
     beats_ok = set(own) <= {exp.heartbeat} and (own or w.t1 - w.t0 < HEARTBEAT_PERIOD_S)
     told = [t for t in exp.texts if t in w.texts]

@@ -2,7 +2,7 @@
 
 Six daemon runs cover the nine conditions: a missing parameter file that then appears
 (parameters unusable, measuring, shutting down), a replay whose first frame is unreadable
-and whose frames then stop for 7 s (starting, camera lost), a replay that ends (source
+and whose frames then stop (starting, camera lost), a replay that ends (source
 ended), and three steady scenes: a branch at 0.1 m (too close), nothing nearer than 6 m (nothing
 confident) and ``ranging.max_age_ms: 1`` (stale).
 """
@@ -26,9 +26,10 @@ from uav_depth.daemon.link.conditions import Condition
 from uav_depth.sim.scene import Scene, SceneConfig
 
 BRANCH_CM = round(SCENE["branch_distance_m"] * 100)
-#: The gap replay's frame times (s): frame 0 unreadable, frames from 1.8 s, none from 3.2 s to 10.2 s. A gap longer
-#: than the frame timeout (3 s) is a lost camera, and the replay is reopened from frame 0 (so it has no end).
-REPLAY_TIMES = [0.0] + [1.8 + 0.2 * i for i in range(8)] + [10.2 + 0.2 * i for i in range(8)]
+#: The gap replay's frame times (s): frame 0 unreadable (skipped), frames 1.8 s to 3.2 s, then one at 10.2 s. The 7 s
+#: without a frame is a lost camera (frame timeout 3 s); the source is reopened and the replay starts again from
+#: frame 0, so "camera back" comes with frame 1, 1.8 s later, and the frame at 10.2 s is never reached.
+REPLAY_TIMES = [0.0] + [1.8 + 0.2 * i for i in range(8)] + [10.2]
 REPLAY_FRAME_TIMEOUT_S = 3.0
 
 
@@ -87,7 +88,7 @@ def _replay(d: Path, rx: Receiver, times: list[float], unreadable_first: bool = 
 
 
 def replay_with_a_gap(d: Path) -> dict[Condition, Window]:
-    """A replay: an unreadable first frame (starting), then no frame for 7 s (camera lost), then SIGTERM."""
+    """A replay: an unreadable first frame (starting), then a lost camera until the reopened replay's frame 1."""
     rx = Receiver()
     daemon = _replay(d, rx, REPLAY_TIMES, unreadable_first=True)
     try:
