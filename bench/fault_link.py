@@ -160,14 +160,17 @@ def tcp_stall(d: Path) -> list[Row]:
         finally:
             _close(daemon, peer)
         ages = [age_ms(t, m) for t, m in peer.timed("DISTANCE_SENSOR", t_resume)]
+        told = answers or "answers no TIMESYNC request" in daemon.stderr()     # the operator is told why
         old = [a for a in ages if a > MAX_AGE_MS]
         allowed = 1 if answers else 0           # docs/wire.md: one, if it stopped between answering and reading
         kind = "answers TIMESYNC" if answers else "answers no TIMESYNC"
         rows.append(Row(f"TCP peer ({kind}) stops reading for {STALL_S:g} s",
                         ("readings again, " if answers else "") +
-                        f"at most {allowed} older than {MAX_AGE_MS:g} ms after it resumes",
-                        f"{len(old)} of {len(ages)} older (oldest {max(ages, default=0):.0f} ms)",
-                        len(old) <= allowed and bool(ages or not answers)))
+                        f"at most {allowed} older than {MAX_AGE_MS:g} ms after it resumes"
+                        + ("" if answers else "; the log says it answers no TIMESYNC"),
+                        f"{len(old)} of {len(ages)} older (oldest {max(ages, default=0):.0f} ms)"
+                        + ("" if answers else f"; logged why: {told}"),
+                        len(old) <= allowed and bool(ages or not answers) and told))
     return rows
 
 

@@ -24,7 +24,7 @@ tests/daemon/link/test_contract.py, tests/daemon/test_service.py).
 
     nice -n 10 .venv/bin/python bench/faults.py [--only WORD ...]
 
-Exit status 1 when any row fails. About 6 minutes on two loaded cores.
+Exit status 1 when any row fails. About 3 minutes (at load 15 on two cores).
 """
 
 from __future__ import annotations
