@@ -33,6 +33,7 @@ import yaml
 from mavlink_peer import Receiver
 
 from uav_depth.core.params import DEFAULT_PARAMS, dump_params
+from uav_depth.daemon.link.clock import STATUSTEXT_MIN_S
 from uav_depth.daemon.link.conditions import Condition
 from uav_depth.daemon.link.vocabulary import BOOT_MS_MOD, HEARTBEAT_PERIOD_S, MAV_STATE, UINT8_UNKNOWN
 
@@ -44,6 +45,8 @@ PARAMS_64 = DEFAULT_PARAMS.replace(**{"sgbm.num_disparities": 64})
 GOOD = dump_params(PARAMS_64)
 STATE_NAME = {code: name for name, code in MAV_STATE.items()}
 MAX_AGE_MS = 450.0
+#: How often the send clock looks at least (daemon/link/clock.py).
+CLOCK_LOOK_S = 0.1
 
 
 def config(port: int, params_file: Path | str | None, **sections) -> dict:
@@ -172,6 +175,7 @@ class Window:
     states: list[str]
     stale: list[bool]
     texts: list[str]
+    text_room: bool = True     # the send clock had time to say a STATUSTEXT in it
     notes: list[str] = field(default_factory=list)     # what else the scenario saw
     problems: list[str] = field(default_factory=list)  # what else broke the row (exit code, a traceback)
 
@@ -185,9 +189,12 @@ def window(rx: Receiver, t0: float, t1: float, open_start: bool = False, max_age
     for t, _ in beats:
         newest = [(ta, m) for ta, m in msgs if ta <= t and m.get_type() == "DISTANCE_SENSOR"][-1:]
         stale.append(bool(newest) and age_ms(t, newest[0][1]) > max_age_ms)
+    # the clock says at most one STATUSTEXT a second, looking at least every 100 ms
+    said = [t for t, m in msgs if m.get_type() == "STATUSTEXT" and t < t0]
+    free = max(t0, said[-1] + STATUSTEXT_MIN_S if said else t0)
     return Window(t0, t1, [m for _, m in got if m.get_type() == "DISTANCE_SENSOR"],
                   [STATE_NAME.get(m.system_status, str(m.system_status)) for _, m in beats], stale,
-                  [m.text for _, m in got if m.get_type() == "STATUSTEXT"])
+                  [m.text for _, m in got if m.get_type() == "STATUSTEXT"], t1 - free >= CLOCK_LOOK_S)
 
 
 @dataclass(frozen=True)
@@ -204,7 +211,8 @@ def judge(cond: Condition, w: Window) -> Row:
     Every HEARTBEAT in it carries the row's state, except a CRITICAL one while the daemon was stale (a
     condition of its own, which a loaded machine may reach between frames): in a condition that sends,
     the newest reading was past its age then; in any, the daemon said "blind (stale)" in the window.
-    A window of a HEARTBEAT period or longer holds at least one.
+    A window of a HEARTBEAT period or longer holds at least one. The row's STATUSTEXT is in it unless the
+    send clock had no room for one (it says at most one a second).
     """
     exp = expected(cond)
     fits = sum(reading_fits(cond, m) for m in w.readings)
@@ -215,11 +223,13 @@ def judge(cond: Condition, w: Window) -> Row:
     own = [st for st, x in zip(w.states, excused) if not x]
     beats_ok = set(own) <= {exp.heartbeat} and (own or w.t1 - w.t0 < HEARTBEAT_PERIOD_S)
     told = [t for t in exp.texts if t in w.texts]
-    ok = distance_ok and bool(beats_ok) and len(told) == len(exp.texts) and not w.problems
+    texts_ok = len(told) == len(exp.texts) or not w.text_room
+    ok = distance_ok and bool(beats_ok) and texts_ok and not w.problems
     seen = f"{len(w.readings)} DISTANCE_SENSOR" + (f" ({fits} as the row states)" if w.readings else "")
     beats = ", ".join(f"{own.count(s)} {s}" for s in sorted(set(own))) or "none"
     beats += f" (+{sum(excused)} critical while stale)" if any(excused) else ""
     said = ", ".join(f'"{t}"' for t in dict.fromkeys(w.texts)) or "no STATUSTEXT"
+    said += "" if w.text_room else " (no room for one: the last came under a second before)"
     observed = "; ".join([seen, f"HEARTBEAT {beats}", said, *w.notes, *w.problems])
     return Row(f"wire: {cond.value}", str(exp), observed, ok)
 

@@ -17,8 +17,8 @@ from typing import Callable
 import numpy as np
 
 from mavlink_peer import Receiver
-from wire_rows import (GOOD, SCENE, Daemon, Window, arrival, beats_after, captured_at, config, expected, problems_of,
-                       stopped, window)
+from wire_rows import (GOOD, SCENE, Daemon, Window, arrival, beats_after, captured_at, config, expected, judge,
+                       problems_of, stopped, window)
 
 from uav_depth.core.fileio import atomic_write_text
 from uav_depth.core.session import SessionWriter
@@ -127,8 +127,19 @@ def replay_to_its_end(d: Path) -> dict[Condition, Window]:
     return {Condition.SOURCE_ENDED: ended}
 
 
+def _settled(rx: Receiver, cond: Condition, t0: float) -> float | None:
+    """The end of a steady window: 3 HEARTBEAT after ``t0``; more while the daemon was only stale (a loaded
+    machine's stereo stage behind), up to 30."""
+    beats = rx.timed("HEARTBEAT", t0)
+    if len(beats) < 3:
+        return None
+    t1 = beats[-1][0]
+    return t1 if judge(cond, window(rx, t0, t1)).ok or len(beats) >= 30 else None
+
+
 def steady(cond: Condition, scene: dict | None = None, **sections) -> Callable[[Path], dict[Condition, Window]]:
-    """A daemon that stays in ``cond``: its window runs from the condition's STATUSTEXT over 3 HEARTBEAT."""
+    """A daemon that stays in ``cond``: its window runs from the condition's STATUSTEXT over 3 HEARTBEAT (more,
+    up to 30, while a loaded machine keeps it stale)."""
     def run(d: Path) -> dict[Condition, Window]:
         rx = Receiver()
         (d / "params.yaml").write_text(GOOD)
@@ -138,7 +149,7 @@ def steady(cond: Condition, scene: dict | None = None, **sections) -> Callable[[
             t0 = arrival(rx, daemon, expected(cond).texts[0])
             if cond.sends:
                 daemon.wait_for(lambda: len(rx.of("DISTANCE_SENSOR", t0)) >= 10, "10 readings")
-            w = window(rx, t0, beats_after(rx, daemon, t0, 3))
+            w = window(rx, t0, daemon.wait_for(lambda: _settled(rx, cond, t0), "3 HEARTBEAT in it"))
             _, _, code = stopped(rx, daemon)
         finally:
             daemon.kill()
