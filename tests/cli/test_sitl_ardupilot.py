@@ -23,8 +23,8 @@ import time
 
 import pytest
 
-from ardupilot_sitl import (ALT_M, ENV_BINARY, GUIDED, HOLDS_MPS, SENSORS, Sitl, approach, binary, free_udp_port,
-                            prepare, rf_after_reboot, start_daemon, stop)
+from ardupilot_sitl import (ALT_M, ENV_BINARY, GUIDED, HOLDS_MPS, Sitl, approach, binary, free_udp_port,
+                            prepare, start_daemon, stop)
 
 
 needs_sitl = pytest.mark.skipif(binary() is None, reason=f"needs the ArduCopter SITL binary: set {ENV_BINARY}="
@@ -96,12 +96,9 @@ def test_a_mismatched_rngfnd1_min_is_reported_within_5_s_of_connecting(tmp_path)
     daemon = None
     log_path = tmp_path / "daemon.log"
     try:
-        for name, value in SENSORS["rf"].items():
-            sitl.set_param(name, value)
-        sitl.reboot()
-        assert sitl.has_param("RNGFND1_ORIENT"), "RNGFND1_ORIENT does not exist after RNGFND1_TYPE=10 and a reboot"
-        for name, value in {**rf_after_reboot(), "RNGFND1_MIN": 0.3}.items():
-            sitl.set_param(name, value)
+        # every setting as autopilot-params prints it (the avoidance ones too), but RNGFND1_MIN: the one misfit
+        prepare(sitl, "rf")
+        sitl.set_param("RNGFND1_MIN", 0.3)
         daemon = start_daemon(port, tmp_path / "truth.csv", log_path)
         assert sitl.wait(lambda: "answering the autopilot at" in log_path.read_text(), 90), log_path.read_text()
         t_connected = time.monotonic()
