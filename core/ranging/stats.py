@@ -45,6 +45,12 @@ def median(values: np.ndarray) -> float:
     return float(s[n // 2]) if n % 2 else (float(s[n // 2 - 1]) + float(s[n // 2])) / 2.0
 
 
+def share_of(mask: np.ndarray) -> float:
+    """``mask.mean()`` of a bool map (the share of it that is True, NaN when empty), by a count: ``mean``
+    converts every pixel to float first and takes about ten times as long on a region's map."""
+    return np.count_nonzero(mask) / mask.size if mask.size else float("nan")
+
+
 def count_median(counts: np.ndarray) -> float:
     """The median of pixel indices given as a histogram (``counts[i]`` pixels at index i, at least one in all):
     :func:`median` of the indices themselves, the same value, without listing them (the histogram is one
