@@ -15,7 +15,7 @@ from uav_depth.core.params import DEFAULT_PARAMS, load_params
 from uav_depth.core.ranging import (NEAR_END_BAND, OutlierGate, Ranger, RangingConfig, Reason, default_roi,
                                     resolve_roi, slant)
 from uav_depth.core.ranging.nearest import find
-from uav_depth.core.ranging.stats import count_median, median, weighted_quantiles
+from uav_depth.core.ranging.stats import count_median, weighted_quantiles
 from uav_depth.sim.scene import Scene, SceneConfig
 from uav_depth.sim.sweep import render
 
@@ -1039,19 +1039,12 @@ def test_unweighted_quantiles_count_what_unit_weights_sum(step):
         assert weighted_quantiles(values, None, *qs) == _sorted_quantiles(values, np.ones(n), *qs)
 
 
-def test_the_median_of_pixel_indices_is_numpys():
+def test_the_median_of_pixel_indices_from_their_histogram_is_numpys():
     rng = np.random.default_rng(10)
-    for n in [1, 2, 3, 4, 5, 64, 65, 1024, 1025, 3000]:
-        idx = rng.integers(0, 720, n)
-        assert median(idx) == float(np.median(idx))
-
-
-def test_the_median_of_a_histogram_of_indices_is_the_indices_median():
-    rng = np.random.default_rng(11)
     for n in [1, 2, 3, 4, 5, 64, 65, 1024, 1025, 3000]:
         for hi in (1, 3, 720):
             idx = rng.integers(0, hi, n)
-            assert count_median(np.bincount(idx, minlength=hi + 5)) == median(idx)
+            assert count_median(np.bincount(idx, minlength=hi + 5)) == float(np.median(idx))
 
 
 def test_weighted_quantiles_off_the_grid_fall_back_to_the_sort():
