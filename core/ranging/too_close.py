@@ -44,8 +44,9 @@ BLANK_VALID_FRACTION = 0.1
 TEXTURED_SHARE = 0.01
 
 
-def near_evidence(s: Setup, result: DisparityResult) -> tuple[Reason, str] | None:
-    """Why the region holds an object nearer than the minimum range by the near check (rules 1, 3, 4), or None."""
+def near_evidence(s: Setup, result: DisparityResult, usable_share: float = 0.0) -> tuple[Reason, str] | None:
+    """Why the region holds an object nearer than the minimum range by the near check (rules 1, 3, 4), or None.
+    ``usable_share``: the share of the ROI ranging's usable pixels make (:func:`.nearest.usable`), when known."""
     near = result.near
     if near is None:
         return None
@@ -92,6 +93,9 @@ def near_evidence(s: Setup, result: DisparityResult) -> tuple[Reason, str] | Non
     # Rule 4 on the near pass's confident matches (docs/ranging.md, rule 1 says why not its left-right check).
     # The main pass's alone first: when they already pass, so does the union, and the near pass's confidence
     # (computed when asked for) is not needed.
+    # The usable pixels are main matches (above the far floor): when they make the share, so does the main pass.
+    if main is None and usable_share >= BLANK_VALID_FRACTION:
+        return None
     main = main_matched() if main is None else main
     if share_of(main) >= BLANK_VALID_FRACTION:
         return None
@@ -115,7 +119,7 @@ def near_evidence(s: Setup, result: DisparityResult) -> tuple[Reason, str] | Non
 
 def near_check(s: Setup, f: RangingFrame) -> Measurement | None:
     """Stage: too close by the near check's evidence (rules 1, 3, 4)."""
-    evidence = near_evidence(s, f.result)
+    evidence = near_evidence(s, f.result, f.valid_fraction)
     if evidence is None:
         return None
     code, why = evidence
