@@ -56,10 +56,9 @@ def near_evidence(s: Setup, result: DisparityResult, usable_share: float = 0.0) 
     with np.errstate(invalid="ignore"):
         # Rules 1 and 3 on the near pass's left-right check alone: at its coarse scale a branch a few pixels
         # wide is all depth edge, and the confidence's roll-off weighs it 0 (docs/ranging.md, rule 1).
-        near_found = np.isfinite(nd)
+        beyond = nd > s.d_max       # NaN compares False: only where the near pass matched
         if near.consistent is not None:
-            near_found &= near.consistent[y0:y1, x0:x1]
-        beyond = near_found & (nd > s.d_max)
+            beyond &= near.consistent[y0:y1, x0:x1]
     share = share_of(beyond) if beyond.size else 0.0
     if share >= NEAR_BEYOND_SHARE:
         b = nd[beyond]
