@@ -122,8 +122,8 @@ def confidence_maps(left16: np.ndarray, right16: np.ndarray, sgbm: SGBMParams, r
     ra = max(ro, min(c0 - max(sgbm.min_disparity + sgbm.num_disparities - 1, 0), re - 1))
     rb = min(re, max(c1 + 1 - sgbm.min_disparity, ra + 1))    # +1: an unmatched pixel points one right
     safe = np.clip(np.where(checked, ridx, ra), ra, rb - 1)
-    rows = np.arange(h)[:, None]
-    dr = right16[rows, safe].astype(np.int32)
+    # Each left pixel's partner by one flat index into the (contiguous) map: half the time of a two-array index.
+    dr = np.ascontiguousarray(right16).ravel().take(safe + np.arange(0, h * w, w)[:, None]).astype(np.int32)
     agree = np.abs(dl + dr) < int(rf * LRC_THRESH_X16)
     lr_ok[:, c0:c1] = (dl >= sgbm.min_disparity * 16) & (agree | ~checked)
     if conf is None:
@@ -134,6 +134,6 @@ def confidence_maps(left16: np.ndarray, right16: np.ndarray, sgbm: SGBMParams, r
     right_min = 1 - (sgbm.min_disparity + sgbm.num_disparities)      # the right matcher's own min_disparity
     right_w = weight_over(right16, (right_min - 1) * 16, (right16 <= -sgbm.min_disparity * 16)
                           & (right16 >= right_min * 16), ra, rb, ro, re)
-    both = np.minimum(own, right_w[rows, safe - ra])
+    both = np.minimum(own, right_w[np.arange(h)[:, None], safe - ra])
     conf[:, c0:c1] = np.where(checked, np.where(agree, both, np.float32(0.0)), own)
     return conf * np.float32(255.0), lr_ok

@@ -13,7 +13,7 @@ from uav_depth.core.ranging.frame import RangingFrame
 from uav_depth.core.ranging.measurement import Measurement
 from uav_depth.core.ranging.nearest import NearestObject, find, reading, shift, usable
 from uav_depth.core.ranging.setup import Setup
-from uav_depth.core.ranging.stats import median
+from uav_depth.core.ranging.stats import count_median
 
 #: The fine pass (``compute.fine_disparities``) searches from this share of its range below the coarse
 #: disparity: most of it above, where a coarse reading that was too far (the unsafe error) finds its object.
@@ -113,10 +113,11 @@ def fine_window(box: tuple[int, int, int, int], front: np.ndarray,
     ``front`` pixels in it (those that decide the reading), or along the ``anchor`` side ("left",
     "right"): the fine pass's cost stays bounded. ``front``: the box's own pixels."""
     bx0, by0, bx1, by1 = box
-    ys, xs = np.nonzero(front)
-    if ys.size == 0:
+    # The front pixels' median column and row from their counts per column and per row (as the slant window's).
+    per_row = np.count_nonzero(front, axis=1)
+    if not per_row.any():
         return box
-    cx, cy = bx0 + int(median(xs)), by0 + int(median(ys))
+    cx, cy = bx0 + int(count_median(np.count_nonzero(front, axis=0))), by0 + int(count_median(per_row))
     if anchor == "left":
         cx = bx0 + FINE_MAX_COLS // 2
     elif anchor == "right":

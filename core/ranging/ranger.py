@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from typing import Callable
 
+import numpy as np
+
 from uav_depth.core.disparity import DisparityResult
 from uav_depth.core.ranging.fine import fine_pass
 from uav_depth.core.ranging.floors import quality_floor, sigma_ceiling
@@ -61,7 +63,7 @@ class Ranger(Setup):
         disp = result.measured[y0:y1, x0:x1]
         conf = None if result.confidence is None else result.confidence[y0:y1, x0:x1]
         ok = usable(self, disp, conf)
-        n_valid = int(ok.sum())
+        n_valid = np.count_nonzero(ok)
         frame = RangingFrame(result, disp, conf, ok, n_valid, n_valid / disp.size)
         m = None
         for _, stage in READING:

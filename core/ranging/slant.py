@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from uav_depth.core.ranging.config import RangingConfig
-from uav_depth.core.ranging.stats import median, weighted_quantiles
+from uav_depth.core.ranging.stats import count_median, weighted_quantiles
 
 #: A slanted object's surface is also read in a square window this many matched px a side around its front
 #: pixels, where it is nearest (0 turns the rule off): wide enough to hold an object's min_valid_px at any
@@ -33,11 +33,13 @@ def slanted_surface(config: RangingConfig, mask: np.ndarray, disp: np.ndarray, w
     if FRONT_WINDOW_MATCHED_PX <= 0:
         return d
     with np.errstate(invalid="ignore"):
-        ys, xs = np.nonzero(mask & (disp >= front))
-    if ys.size == 0:
+        at_front = mask & (disp >= front)
+    # The front pixels' median row and column from their counts per row and per column.
+    per_row = np.count_nonzero(at_front, axis=1)
+    if not per_row.any():
         return d
     half = FRONT_WINDOW_MATCHED_PX * count_px / 2.0
-    cy, cx = median(ys), median(xs)
+    cy, cx = count_median(per_row), count_median(np.count_nonzero(at_front, axis=0))
     # The window: the box's rows and columns within ``half`` of the centre (a slice of the box).
     r = np.flatnonzero(np.abs(np.arange(mask.shape[0]) - cy) <= half)
     c = np.flatnonzero(np.abs(np.arange(mask.shape[1]) - cx) <= half)

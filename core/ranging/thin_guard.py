@@ -13,6 +13,7 @@ from uav_depth.core.ranging.limits import WEAK_TOO_CLOSE_FACTOR
 from uav_depth.core.ranging.measurement import Measurement, Reason
 from uav_depth.core.ranging.nearest import CLUSTER_MARGIN_PX, NearestObject, find, reading, shift
 from uav_depth.core.ranging.setup import Setup
+from uav_depth.core.ranging.stats import share_of
 
 #: The guard's object replaces the reading when it is nearer by more than this share ...
 THIN_GUARD_NEARER_REL = 0.02
@@ -71,7 +72,7 @@ def thin_guard(s: Setup, m: Measurement, result: DisparityResult) -> Measurement
         with np.errstate(invalid="ignore"):
             member = ok & (disp >= g.lower) & (disp <= g.front + CLUSTER_MARGIN_PX * s.px)
         conf = result.confidence[y0:y1, x0:x1]
-        if float((conf[member] >= cfg.min_confidence).mean()) >= THIN_GUARD_MAX_CONFIDENT_SHARE:
+        if share_of(conf[member] >= cfg.min_confidence) >= THIN_GUARD_MAX_CONFIDENT_SHARE:
             return m       # the confident pixels saw this object: only the weighting differs
     lim = s.search_end_m
     if g.front >= s.d_max - CLUSTER_MARGIN_PX * s.px or z < WEAK_TOO_CLOSE_FACTOR * lim:
@@ -82,7 +83,7 @@ def thin_guard(s: Setup, m: Measurement, result: DisparityResult) -> Measurement
                            reason_code=Reason.THIN_GUARD_TOO_CLOSE)
     if not m.valid:      # the guard makes a reading nearer or too close; it never turns "none" into a distance
         return m
-    quality = int(min(100, max(2, round(100.0 * float(ok.mean())))))
+    quality = int(min(100, max(2, round(100.0 * share_of(ok)))))
     g_m = replace(reading(s, g, shift(g.bbox, x0, y0), quality, m.valid_fraction), guarded=True)
     why = imprecise(s, g_m)
     if why is not None:      # nearer than m, but not precise: neither is sent

@@ -22,6 +22,7 @@ from uav_depth.core.ranging.limits import NEAR_END_BAND
 from uav_depth.core.ranging.measurement import Measurement, Reason
 from uav_depth.core.ranging.nearest import CLUSTER_MARGIN_PX
 from uav_depth.core.ranging.setup import Setup
+from uav_depth.core.ranging.stats import share_of
 
 #: Rule 1: at least this share of the ROI matched beyond the main search by the near pass, left-right consistent.
 #: With the flight file, branches at 0.08-0.27 m give 0.21-0.74 and frames with nothing nearer than the minimum
@@ -51,8 +52,9 @@ TEXTURED_SHARE = 0.01
 SIGNAL_SHARE = TEXTURED_SHARE
 
 
-def near_evidence(s: Setup, result: DisparityResult) -> tuple[Reason, str] | None:
-    """Why the region holds an object nearer than the minimum range by the near check (rules 1, 3, 4), or None."""
+def near_evidence(s: Setup, result: DisparityResult, usable_share: float = 0.0) -> tuple[Reason, str] | None:
+    """Why the region holds an object nearer than the minimum range by the near check (rules 1, 3, 4), or None.
+    ``usable_share``: the share of the ROI ranging's usable pixels make (:func:`.nearest.usable`), when known."""
     near = result.near
     if near is None:
         return None
@@ -62,11 +64,10 @@ def near_evidence(s: Setup, result: DisparityResult) -> tuple[Reason, str] | Non
     with np.errstate(invalid="ignore"):
         # Rules 1 and 3 on the near pass's left-right check alone: at its coarse scale a branch a few pixels
         # wide is all depth edge, and the confidence's roll-off weighs it 0 (docs/ranging.md, rule 1).
-        near_found = np.isfinite(nd)
+        beyond = nd > s.d_max       # NaN compares False: only where the near pass matched
         if near.consistent is not None:
-            near_found &= near.consistent[y0:y1, x0:x1]
-        beyond = near_found & (nd > s.d_max)
-    share = float(beyond.mean()) if beyond.size else 0.0
+            beyond &= near.consistent[y0:y1, x0:x1]
+    share = share_of(beyond) if beyond.size else 0.0
     if share >= NEAR_BEYOND_SHARE:
         b = nd[beyond]
         return Reason.NEAR_PASS, (f"the near pass matches {share:.0%} of the ROI at disparities {np.median(b):.0f} "
@@ -87,7 +88,7 @@ def near_evidence(s: Setup, result: DisparityResult) -> tuple[Reason, str] | Non
         # pass has no confident match of its own (where it has one, the near match is the false one).
         main = main_matched()
         unconfirmed = beyond & ~main
-        u_share = float(unconfirmed.mean())
+        u_share = share_of(unconfirmed)
         if u_share >= NEAR_UNCONFIRMED_SHARE and unconfirmed.sum() >= NEAR_UNCONFIRMED_RATIO * beyond.sum():
             b = nd[unconfirmed]
             return Reason.NEAR_UNCONFIRMED, (
@@ -99,20 +100,23 @@ def near_evidence(s: Setup, result: DisparityResult) -> tuple[Reason, str] | Non
     # Rule 4 on the near pass's confident matches (docs/ranging.md, rule 1 says why not its left-right check).
     # The main pass's alone first: when they already pass, so does the union, and the near pass's confidence
     # (computed when asked for) is not needed.
+    # The usable pixels are main matches (above the far floor): when they make the share, so does the main pass.
+    if main is None and usable_share >= BLANK_VALID_FRACTION:
+        return None
     main = main_matched() if main is None else main
-    if main.mean() >= BLANK_VALID_FRACTION:
+    if share_of(main) >= BLANK_VALID_FRACTION:
         return None
     near_ok = np.isfinite(nd)
     if near.confidence is not None:
         near_ok &= near.confidence()[y0:y1, x0:x1] >= cfg.min_confidence
     matched = near_ok | main
-    m_all = float(matched.mean())
+    m_all = share_of(matched)
     if m_all >= BLANK_VALID_FRACTION:
         return None
     # Blank: is it textured (an object nearer than either search) or not (sky, a bare wall)?
     tex = near.textured()[y0:y1, x0:x1]
-    tex_share = float(tex.mean()) if tex.size else 0.0
-    if tex_share >= TEXTURED_SHARE and float(matched[tex].mean()) < BLANK_VALID_FRACTION:
+    tex_share = share_of(tex) if tex.size else 0.0
+    if tex_share >= TEXTURED_SHARE and share_of(matched[tex]) < BLANK_VALID_FRACTION:
         return Reason.BLANK_TEXTURED, (
             f"{tex_share:.0%} of the ROI is textured in both views but neither pass matches it at any "
             f"disparity it searches ({m_all:.0%} of the ROI matched): an object nearer than either search "
@@ -122,7 +126,7 @@ def near_evidence(s: Setup, result: DisparityResult) -> tuple[Reason, str] | Non
 
 def near_check(s: Setup, f: RangingFrame) -> Measurement | None:
     """Stage: too close by the near check's evidence (rules 1, 3, 4)."""
-    evidence = near_evidence(s, f.result)
+    evidence = near_evidence(s, f.result, f.valid_fraction)
     if evidence is None:
         return None
     code, why = evidence

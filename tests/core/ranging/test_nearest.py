@@ -8,7 +8,6 @@ import pytest
 from uav_depth.core.disparity import DisparityPipeline
 from uav_depth.core.errors import ConfigError
 from uav_depth.core.ranging import NEAR_END_BAND, Ranger, RangingConfig, Reason, default_roi, resolve_roi, slant
-from uav_depth.core.ranging.stats import median
 from uav_depth.sim.scene import Scene, SceneConfig
 
 from ranging_cases import PARAMS, _result, _scene_result, ranger

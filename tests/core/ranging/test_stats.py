@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from uav_depth.core.ranging.stats import median, weighted_quantiles
+from uav_depth.core.ranging.stats import count_median, weighted_quantiles
 
 
 def _sorted_quantiles(values, weights, *qs):
@@ -39,11 +39,12 @@ def test_unweighted_quantiles_count_what_unit_weights_sum(step):
         assert weighted_quantiles(values, None, *qs) == _sorted_quantiles(values, np.ones(n), *qs)
 
 
-def test_the_median_of_pixel_indices_is_numpys():
+def test_the_median_of_pixel_indices_from_their_histogram_is_numpys():
     rng = np.random.default_rng(10)
     for n in [1, 2, 3, 4, 5, 64, 65, 1024, 1025, 3000]:
-        idx = rng.integers(0, 720, n)
-        assert median(idx) == float(np.median(idx))
+        for hi in (1, 3, 720):
+            idx = rng.integers(0, hi, n)
+            assert count_median(np.bincount(idx, minlength=hi + 5)) == float(np.median(idx))
 
 
 def test_weighted_quantiles_off_the_grid_fall_back_to_the_sort():
