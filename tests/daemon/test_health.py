@@ -24,35 +24,8 @@ from uav_depth.daemon.config import run_config_from_dict
 from uav_depth.daemon.service import Service
 
 from mavlink_peer import free_port
+from notify_socket import NotifySocket
 
-
-class NotifySocket:
-    """A unix datagram socket standing in for systemd's NOTIFY_SOCKET: (arrival, datagram) pairs."""
-
-    def __init__(self, path):
-        self.path = str(path)
-        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-        self.sock.bind(self.path)
-        self.sock.settimeout(0.1)
-        self.datagrams = []
-        self._stop = threading.Event()
-        self._t = threading.Thread(target=self._loop, daemon=True)
-        self._t.start()
-
-    def _loop(self):
-        while not self._stop.is_set():
-            try:
-                self.datagrams.append((time.monotonic(), self.sock.recv(4096).decode()))
-            except socket.timeout:
-                continue
-
-    def lines(self):
-        return [line for _, d in self.datagrams for line in d.split("\n")]
-
-    def close(self):
-        self._stop.set()
-        self._t.join(1)
-        self.sock.close()
 
 SCENE = {"width": 320, "height": 240, "focal_px": 200.0, "branch_distance_m": 0.8, "seed": 1}
 PARAMS_64 = DEFAULT_PARAMS.replace(**{"sgbm.num_disparities": 64})

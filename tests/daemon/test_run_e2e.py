@@ -12,10 +12,8 @@ import math
 import os
 import resource
 import signal
-import socket
 import subprocess
 import sys
-import threading
 import time
 
 import numpy as np
@@ -28,39 +26,11 @@ from uav_depth.core.params import DEFAULT_PARAMS, save_params
 from uav_depth.sim.scene import Pose, Scene, SceneConfig
 
 from mavlink_peer import free_port
+from notify_socket import NotifySocket
 
 RATE_HZ = 20.0
 SHUTDOWN_S = 3.0
 PARAMS_64 = DEFAULT_PARAMS.replace(**{"sgbm.num_disparities": 64})
-
-
-class NotifySocket:
-    """A real unix datagram socket standing in for systemd's NOTIFY_SOCKET."""
-
-    def __init__(self, path):
-        self.path = str(path)
-        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-        self.sock.bind(self.path)
-        self.sock.settimeout(0.1)
-        self.datagrams = []
-        self._stop = threading.Event()
-        self._t = threading.Thread(target=self._loop, daemon=True)
-        self._t.start()
-
-    def _loop(self):
-        while not self._stop.is_set():
-            try:
-                self.datagrams.append((time.monotonic(), self.sock.recv(4096).decode()))
-            except socket.timeout:
-                continue
-
-    def lines(self):
-        return [line for _, d in self.datagrams for line in d.split("\n")]
-
-    def close(self):
-        self._stop.set()
-        self._t.join(1)
-        self.sock.close()
 
 
 def wait(pred, timeout, proc=None, what=""):
