@@ -73,11 +73,17 @@ def udpin_takeover(d: Path) -> list[Row]:
                 not stranger.got and back > 0)]
 
 
-def signed_replay(d: Path) -> list[Row]:
-    """With signing: the autopilot's own signed HEARTBEATs replayed from another address, then the autopilot moves."""
+def _key_file(d: Path) -> Path:
+    """The signing key the daemon and the autopilot share (mode 0600, as the daemon requires)."""
     key_file = d / "mavlink.key"
     key_file.write_text("correct horse battery staple\n")
     key_file.chmod(0o600)
+    return key_file
+
+
+def signed_replay(d: Path) -> list[Row]:
+    """With signing: the autopilot's own signed HEARTBEATs replayed from another address, then the autopilot moves."""
+    key_file = _key_file(d)
     port = free_port()
     daemon = _daemon(d, f"udpin:127.0.0.1:{port}", signing_key_file=str(key_file))
     autopilot, attacker, moved = Udp(port), Udp(port), Udp(port)
@@ -99,9 +105,7 @@ def signed_replay(d: Path) -> list[Row]:
 
 def wrong_key_flood(d: Path) -> list[Row]:
     """Wrongly signed HEARTBEATs, 50 every 5 ms for 3 s, before any autopilot is bound."""
-    key_file = d / "mavlink.key"
-    key_file.write_text("correct horse battery staple\n")
-    key_file.chmod(0o600)
+    key_file = _key_file(d)
     port = free_port()
     daemon = _daemon(d, f"udpin:127.0.0.1:{port}", signing_key_file=str(key_file))
     flooder, wrong = Udp(port), _parser(b"\x01" * 32)
