@@ -108,10 +108,12 @@ def rejected_path(out: str) -> str:
 def ranging_of(args: argparse.Namespace):
     """(the ranging settings every candidate is ranged with, where they came from): the ``ranging:`` section as
     run would resolve it: ``--config``, else ``$UAV_DEPTH_CONFIG``, with run's ``UAV_DEPTH_RANGING_*`` variables
-    over it (also without a file), else the daemon's defaults."""
+    over it (also without a file), else the daemon's defaults. A config file run would refuse is refused here."""
     from uav_depth.cli.sources import SOURCES
-    from uav_depth.daemon.config import load_section
+    from uav_depth.daemon.config import load_run_config, load_section
 
+    if args.config or os.environ.get("UAV_DEPTH_CONFIG"):
+        load_run_config(args.config, sources=SOURCES)
     return load_section("ranging", args.config, sources=SOURCES)
 
 
