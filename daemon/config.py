@@ -207,6 +207,28 @@ def load_run_config(path: str | os.PathLike[str] | None = None, overrides: Mappi
     over the file. Unknown ``UAV_DEPTH_*`` variables are logged, not fatal.
     ``sources``: the frame source kinds accepted.
     """
+    data, source, base_dir, origin = _resolve(path, overrides, environ, sources)
+    return run_config_from_dict(data, source, base_dir, origin, sources)
+
+
+def load_section(name: str, path: str | os.PathLike[str] | None = None, environ: Mapping[str, str] | None = None,
+                 sources: SourceTable = BUILTIN) -> tuple[Any, str]:
+    """One section of :data:`SECTION_CLASSES` (e.g. ``ranging``) as ``run`` would resolve it from the same file
+    and ``UAV_DEPTH_*`` variables (:func:`load_run_config`), without needing the rest of a run config (a frame
+    source); and where it came from, in words."""
+    data, source, _, origin = _resolve(path, None, environ, sources)
+    cls = SECTION_CLASSES[name]
+    section = cls(**section_values(cls.KEYS, data.get(name), name, source, origin=origin))
+    env = sorted({o for k, o in origin.items() if k.startswith(name + ".")})
+    where = ([f"the {name} settings of {source}"] if source else []) + env
+    return section, " and ".join(where) if where else f"the default {name} settings (no config file)"
+
+
+def _resolve(path: str | os.PathLike[str] | None, overrides: Mapping[str, Any] | None,
+             environ: Mapping[str, str] | None,
+             sources: SourceTable) -> tuple[dict[str, Any], str | None, Path | None, dict[str, str]]:
+    """(the settings as one mapping, the file they came from, its folder, where each key set came from): the
+    file, then ``UAV_DEPTH_*`` variables, then ``overrides`` (:func:`load_run_config` says the order)."""
     environ = os.environ if environ is None else environ
     if path is None and environ.get("UAV_DEPTH_CONFIG"):
         path = environ["UAV_DEPTH_CONFIG"]
@@ -234,7 +256,7 @@ def load_run_config(path: str | os.PathLike[str] | None = None, overrides: Mappi
         _set_dotted(data, dotted, value)
         origin[dotted] = "command line"
         origin.setdefault(dotted.split(".")[0], "command line")
-    return run_config_from_dict(data, source, base_dir, origin, sources)
+    return data, source, base_dir, origin
 
 
 def reference_markdown(sources: SourceTable = BUILTIN) -> str:
@@ -262,7 +284,7 @@ def _default(k: Key) -> str:
     return str(k.default)
 
 
-__all__ = ["Key", "RunConfig", "RangingConfig", "MavlinkConfig", "LoggingConfig", "ServiceConfig",
+__all__ = ["Key", "RunConfig", "load_section", "RangingConfig", "MavlinkConfig", "LoggingConfig", "ServiceConfig",
            "load_run_config", "run_config_from_dict", "section_values", "reference_markdown", "env_keys"]
 
 

@@ -106,17 +106,15 @@ def rejected_path(out: str) -> str:
 
 
 def ranging_of(args: argparse.Namespace):
-    """(the ranging settings every candidate is ranged with, where they came from): the ``ranging:`` section of
-    the config run would load (``--config``, else ``$UAV_DEPTH_CONFIG``, with run's ``UAV_DEPTH_*`` overrides),
-    else the daemon's defaults."""
+    """(the ranging settings every candidate is ranged with, where they came from): the ``ranging:`` section as
+    run would resolve it: ``--config``, else ``$UAV_DEPTH_CONFIG``, with run's ``UAV_DEPTH_RANGING_*`` variables
+    over it (also without a file), else the daemon's defaults. A config file run would refuse is refused here."""
     from uav_depth.cli.sources import SOURCES
-    from uav_depth.daemon.config import load_run_config
-    from uav_depth.core.ranging import RangingConfig
+    from uav_depth.daemon.config import load_run_config, load_section
 
-    path = args.config or os.environ.get("UAV_DEPTH_CONFIG")
-    if not path:
-        return RangingConfig(), "the default ranging settings (no --config, no UAV_DEPTH_CONFIG)"
-    return load_run_config(path, sources=SOURCES).ranging, f"the ranging settings of {path}"
+    if args.config or os.environ.get("UAV_DEPTH_CONFIG"):
+        load_run_config(args.config, sources=SOURCES)
+    return load_section("ranging", args.config, sources=SOURCES)
 
 
 def build_request(args: argparse.Namespace, terminal, stop):

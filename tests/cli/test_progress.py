@@ -182,8 +182,7 @@ def test_tune_announces_every_phase_after_its_bar(tiny_session, tmp_path):
     assert any(line.startswith("  candidates scored 1/") for line in lines)
     assert "  scored 1/6" in lines and "  scored 6/6" in lines
     assert phases[:4] == ["loading the tuner ...",
-                          "ranging every candidate with the default ranging settings (no --config, no "
-                          "UAV_DEPTH_CONFIG) ...",
+                          "ranging every candidate with the default ranging settings (no config file) ...",
                           f"loading the frames of {tiny_session / 's'} ...",
                           "1 training, 2 validation and 1 test frame(s): the search trains, the choice chooses, the "
                           "gate judges on the test frames alone ..."]

@@ -5,8 +5,8 @@ from pathlib import Path
 
 import pytest
 
-from uav_depth.daemon.config import (MavlinkConfig, RangingConfig, env_keys, load_run_config, reference_markdown,
-                                     run_config_from_dict, SECTION_CLASSES)
+from uav_depth.daemon.config import (MavlinkConfig, RangingConfig, env_keys, load_run_config, load_section,
+                                     reference_markdown, run_config_from_dict, SECTION_CLASSES)
 from uav_depth.core.errors import ConfigError, FileFormatError
 from uav_depth.cli.sources import SOURCES
 from uav_depth.daemon.sources import source_keys
@@ -46,6 +46,24 @@ def test_precedence_argument_over_environment_over_file(tmp_path):
     assert cfg.mavlink.rate_hz == 25 and cfg.mavlink.url == "udpin:0.0.0.0:14560"
     cfg = load_run_config(path, overrides={"mavlink.rate_hz": 30}, environ=env, sources=SOURCES)
     assert cfg.mavlink.rate_hz == 30 and cfg.mavlink.url == "udpin:0.0.0.0:14560"
+
+
+def test_one_section_resolves_as_run_would_without_a_frame_source(tmp_path):
+    # What the tuner ranges with: the ranging section run would fly, also with no config file at all (then only
+    # the UAV_DEPTH_RANGING_* variables and the defaults) and from a file without a source.
+    assert load_section("ranging", None, environ={}, sources=SOURCES) == \
+        (RangingConfig(), "the default ranging settings (no config file)")
+    env = {"UAV_DEPTH_RANGING_MAX_DISTANCE_M": "4.5", "UAV_DEPTH_MAVLINK_RATE_HZ": "25"}
+    ranging, where = load_section("ranging", None, environ=env, sources=SOURCES)
+    assert ranging.max_distance_m == 4.5 and where == "environment UAV_DEPTH_RANGING_MAX_DISTANCE_M"
+    path = write(tmp_path, "ranging: {max_distance_m: 3.0, min_quality: 40}\n")
+    ranging, where = load_section("ranging", path, environ=env, sources=SOURCES)
+    assert (ranging.max_distance_m, ranging.min_quality) == (4.5, 40)
+    assert where == f"the ranging settings of {path} and environment UAV_DEPTH_RANGING_MAX_DISTANCE_M"
+    ranging, _ = load_section("ranging", None, environ={"UAV_DEPTH_CONFIG": str(path)}, sources=SOURCES)
+    assert ranging.max_distance_m == 3.0
+    with pytest.raises(ConfigError, match="ranging.max_distance_m"):
+        load_section("ranging", None, environ={"UAV_DEPTH_RANGING_MAX_DISTANCE_M": "-1"}, sources=SOURCES)
 
 
 def test_config_file_from_environment_and_relative_paths(tmp_path):
