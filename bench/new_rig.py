@@ -11,6 +11,8 @@ noise, a gain mismatch between the eyes and blur), as that user would:
    ``--generations`` shrink the budget: say so when you report) and each ``--seeds`` seed;
 4. the ceiling: the same tune on the held-out sessions themselves (:data:`CEILING_ARGS`: trained and chosen on
    the very frames it is measured on by the fitness alone, no safety sweep: the most the search could give);
+   when that tune's best does not beat the base on its own fitness there, the ceiling is the base (the search
+   found no room, so there is no gap to close: :func:`ceiling_params`);
 5. every file ranged on the held-out frames as the daemon flies it (flight pipeline, then its ranging stage):
    median absolute branch-distance error, the worst reading farther than the truth, frames farther than 2 %,
    frames with no measurement, and ms per frame, timed side by side in this process.
@@ -39,6 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from new_rig_logs import daemon_logs
 
@@ -50,7 +53,7 @@ from uav_depth.sim.scene_config import SceneConfig, vary
 from uav_depth.tuning.frames import FrameSet, load_frame
 from uav_depth.tuning.front import time_params
 from uav_depth.tuning.metrics import FARTHER_TOL_PCT, branch_signed
-from uav_depth.tuning.objective import branch_distances
+from uav_depth.tuning.objective import FITNESS, branch_distances
 
 DEPLOY = Path(__file__).resolve().parents[1] / "deploy"
 #: The shipped files and the image width each was made for.
@@ -160,6 +163,16 @@ def run_tune(logdir: Path, base: Path, out: Path, seed: int, args, extra: list[s
 CEILING_ARGS = ["--test", "none", "--holdout", "none", "--safety-sweep", "none", "--force"]
 
 
+def ceiling_params(ceiling_file: Path, base, metric: str | None):
+    """The ceiling tune's file when it beat the base on its own fitness on the frames it was tuned on (its
+    provenance: ``judged_fitness`` against ``judged_baseline_fitness``), else the base; and whether it beat it."""
+    text = yaml.safe_load(ceiling_file.read_text())["provenance"]
+    fitness = FITNESS[text["metric"] if metric is None else metric]
+    beat = fitness.utility(text["judged_fitness"]) > fitness.utility(text["judged_baseline_fitness"])
+    return (load_params(ceiling_file) if beat else base), {"beat_base": beat, "fitness": text["judged_fitness"],
+                                                           "base_fitness": text["judged_baseline_fitness"]}
+
+
 def one_seed(rig: Rig, train: Path, held_dir: Path, held: FrameSet, seed: int, work: Path, args) -> dict:
     """The base, the tuned (written or rejected) and the ceiling file of one tune seed, measured held out."""
     base_file = rig.base_file()
@@ -172,8 +185,9 @@ def one_seed(rig: Rig, train: Path, held_dir: Path, held: FrameSet, seed: int, w
     ceiling = run_tune(held_dir, base_file, ceiling_file, seed, args, CEILING_ARGS)
     rejected = work / f"tuned-s{seed}.rejected.yaml"
     written = load_params(out) if out.exists() else base
+    ceiling_p, ceiling["fitness"] = ceiling_params(ceiling_file, base, args.metric)
     result = {"seed": seed, "tune": tuned, "ceiling_tune": ceiling, "base": measure(base, held).__dict__,
-              "written": measure(written, held).__dict__, "ceiling": measure(load_params(ceiling_file), held).__dict__}
+              "written": measure(written, held).__dict__, "ceiling": measure(ceiling_p, held).__dict__}
     if rejected.exists() and load_params(rejected) != base:      # the choice kept the base: nothing to judge
         result["rejected"] = measure(load_params(rejected), held).__dict__
     return result
@@ -210,6 +224,9 @@ def print_rig(rig: Rig, results: list[dict], held: FrameSet) -> None:
             if name in r:
                 m = Measured(**r[name])
                 print(f"{r['seed']:4d} | {name:8s} | {m.row()} |")
+        fit = r["ceiling_tune"]["fitness"]
+        print(f"     ceiling: {'the ceiling tune' if fit['beat_base'] else 'the base (the ceiling tune did not beat it)'}"
+              f": fitness {fit['fitness']:.4g} against the base's {fit['base_fitness']:.4g} on the held-out frames")
         tune = r["tune"]
         print(f"     tune: {verdict(r)}; gap closed {gap_closed(r):.0%}; {tune['wall_s']:.0f} s; "
               f"{tune['refused'] or 'written'}\n     {tune['line']}")
