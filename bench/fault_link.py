@@ -112,12 +112,7 @@ def wrong_key_flood(d: Path) -> list[Row]:
     try:
         daemon.wait_for(lambda: "ready:" in daemon.stderr(), "start-up")
         before = len(daemon.stderr().splitlines())
-        sent, end = 0, time.monotonic() + 3.0
-        while time.monotonic() < end:
-            for _ in range(50):
-                flooder.send(_heartbeat(wrong))
-            sent += 50
-            time.sleep(0.005)
+        sent = flooder.flood(lambda: _heartbeat(wrong), 3.0)
         daemon.wait_for(lambda: "status:" in "".join(daemon.stderr().splitlines()[before:]), "a status line")
         lines = [ln for ln in daemon.stderr().splitlines()[before:] if "status:" not in ln]
     finally:

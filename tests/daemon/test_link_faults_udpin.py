@@ -52,6 +52,16 @@ class Udp:
     def send(self, frame: bytes):
         self.sock.sendto(frame, self.to)
 
+    def flood(self, make, seconds: float, burst: int = 50) -> int:
+        """Send a new ``make()`` frame ``burst`` at a time, 5 ms apart, for ``seconds``; how many were sent."""
+        sent, end = 0, time.monotonic() + seconds
+        while time.monotonic() < end:
+            for _ in range(burst):
+                self.send(make())
+            sent += burst
+            time.sleep(0.005)
+        return sent
+
     def poll(self):
         while self.sock.fileno() >= 0:     # closed: what it got
             try:
@@ -165,12 +175,7 @@ def test_a_flood_of_wrongly_signed_datagrams_is_a_few_log_lines(tmp_path):
         wait_for(lambda: "ready:" in daemon.stderr(), 90, daemon, "start-up")
         time.sleep(1.0)
         before = daemon.stderr().count("\n")
-        sent, end = 0, time.monotonic() + 3.0
-        while time.monotonic() < end:
-            for _ in range(50):
-                flooder.send(_heartbeat(wrong))
-            sent += 50
-            time.sleep(0.005)
+        sent = flooder.flood(lambda: _heartbeat(wrong), 3.0)
         time.sleep(1.0)
         lines = daemon.stderr().count("\n") - before
         flood_lines = [line for line in daemon.stderr().splitlines()[before:] if "status:" not in line]
