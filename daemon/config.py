@@ -212,13 +212,17 @@ def load_run_config(path: str | os.PathLike[str] | None = None, overrides: Mappi
 
 
 def load_section(name: str, path: str | os.PathLike[str] | None = None, environ: Mapping[str, str] | None = None,
-                 sources: SourceTable = BUILTIN) -> tuple[Any, str]:
+                 sources: SourceTable = BUILTIN, whole_file: bool = False) -> tuple[Any, str]:
     """One section of :data:`SECTION_CLASSES` (e.g. ``ranging``) as ``run`` would resolve it from the same file
     and ``UAV_DEPTH_*`` variables (:func:`load_run_config`), without needing the rest of a run config (a frame
-    source); and where it came from, in words."""
-    data, source, _, origin = _resolve(path, None, environ, sources)
+    source); and where it came from, in words. ``whole_file``: when there is a config file, it is validated
+    whole, as run would (a file run would refuse is refused), and the section taken from it."""
+    data, source, base_dir, origin = _resolve(path, None, environ, sources)
     cls = SECTION_CLASSES[name]
-    section = cls(**section_values(cls.KEYS, data.get(name), name, source, origin=origin))
+    if whole_file and source is not None:
+        section = getattr(run_config_from_dict(data, source, base_dir, origin, sources), name)
+    else:
+        section = cls(**section_values(cls.KEYS, data.get(name), name, source, origin=origin))
     env = sorted({o for k, o in origin.items() if k.startswith(name + ".")})
     where = ([f"the {name} settings of {source}"] if source else []) + env
     return section, " and ".join(where) if where else f"the default {name} settings (no config file)"

@@ -110,11 +110,9 @@ def ranging_of(args: argparse.Namespace):
     run would resolve it: ``--config``, else ``$UAV_DEPTH_CONFIG``, with run's ``UAV_DEPTH_RANGING_*`` variables
     over it (also without a file), else the daemon's defaults. A config file run would refuse is refused here."""
     from uav_depth.cli.sources import SOURCES
-    from uav_depth.daemon.config import load_run_config, load_section
+    from uav_depth.daemon.config import load_section
 
-    if args.config or os.environ.get("UAV_DEPTH_CONFIG"):
-        load_run_config(args.config, sources=SOURCES)
-    return load_section("ranging", args.config, sources=SOURCES)
+    return load_section("ranging", args.config, sources=SOURCES, whole_file=True)
 
 
 def build_request(args: argparse.Namespace, terminal, stop):

@@ -64,6 +64,11 @@ def test_one_section_resolves_as_run_would_without_a_frame_source(tmp_path):
     assert ranging.max_distance_m == 3.0
     with pytest.raises(ConfigError, match="ranging.max_distance_m"):
         load_section("ranging", None, environ={"UAV_DEPTH_RANGING_MAX_DISTANCE_M": "-1"}, sources=SOURCES)
+    # whole_file: the file run would fly is validated as run would: without a source, run refuses it.
+    with pytest.raises(ConfigError, match="source"):
+        load_section("ranging", path, environ={}, sources=SOURCES, whole_file=True)
+    whole = write(tmp_path, "source: {kind: synthetic}\nranging: {max_distance_m: 3.0}\n", "whole.yaml")
+    assert load_section("ranging", whole, environ=env, sources=SOURCES, whole_file=True)[0].max_distance_m == 4.5
 
 
 def test_config_file_from_environment_and_relative_paths(tmp_path):
