@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import subprocess
 import sys
@@ -249,7 +250,9 @@ def print_rig(rig: Rig, results: list[dict], held: FrameSet) -> None:
                     if fit["beat_base"] else f"the base ({r[key]['refused'] or 'its tune did not beat it'})")
             print(f"     {name} on the held-out frames: {said}")
         tune = r["tune"]
-        print(f"     tune: {verdict(r)}; gap closed {gap_closed(r):.0%}; {tune['wall_s']:.0f} s; "
+        gap = gap_closed(r)
+        print(f"     tune: {verdict(r)}; {'no gap' if math.isnan(gap) else f'gap closed {gap:.0%}'}; "
+              f"{tune['wall_s']:.0f} s; "
               f"{tune['refused'] or 'written'}\n     {tune['line']}")
 
 
