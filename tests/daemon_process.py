@@ -70,12 +70,20 @@ def _nobody_check() -> tuple[list[str], str | None]:
     return prefix, None
 
 
+def missing_tool(problem: str):
+    """A system tool a test needs is missing: the test skips with the reason on a laptop and fails in CI
+    (``CI=true``), where .ci/system-deps installs it."""
+    if os.environ.get("CI") == "true":
+        pytest.fail(f"{problem}: CI must have it (.ci/system-deps)")
+    pytest.skip(problem)
+
+
 def _nobody_prefix() -> list[str]:
     prefix, problem = _nobody_check()
     if problem is None:
         return prefix
-    if problem.startswith("setpriv") and os.environ.get("CI") == "true":
-        pytest.fail(f"{problem}: CI must have it (.ci/system-deps)")
+    if problem.startswith("setpriv"):
+        missing_tool(problem)
     pytest.skip(problem)
 
 

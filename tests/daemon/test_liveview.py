@@ -22,6 +22,7 @@ from uav_depth.daemon.liveview import LiveView, LiveViewConfig, Offer, colourise
 from uav_depth.core.ranging import Measurement, RangeLimits
 from uav_depth.daemon.estimate import Estimate
 
+from daemon_process import missing_tool
 from mavlink_peer import free_port
 
 import socket
@@ -144,7 +145,8 @@ def test_port_taken_is_a_config_error_naming_the_port():
 
 def chromium():
     exe = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
-    assert exe, "Chromium is needed (Debian: apt-get install chromium; .ci/system-deps installs it)"
+    if exe is None:
+        missing_tool("Chromium is not installed (Debian: apt-get install chromium)")
     return exe
 
 
