@@ -10,9 +10,17 @@ TPE's start, on ``bench/new_rig.py``'s sessions (run that first; it writes them 
    start (the base and a third of a generation of neighbours, then 10 uniform startup draws): per seed, the
    failed proposals, those better than the base on the fold's training frames, and the best one's figures on
    the fold's validation session and held out.
+3. ``safe``: is there a file both better and safe at all? TPE as shipped (the same start) on the held-out
+   sessions, the ceiling's frames, but told the safety sweep while it searches: each proposal is also read on
+   the rendered sweep (``--sweep``, an entry of tune's ``--sweep-cache``) and is feasible only when it reads no
+   more frames farther than the truth by more than 2 % than the base does (Optuna's trial constraints). It
+   searches on the very frames it is judged on, so it answers whether such a file exists, not what tune
+   would find: per seed, the feasible proposals better than the base and the best one's held-out figures.
 
     nice python bench/new_rig_search.py --work /tmp/new-rig --rig cheap space --samples 60
     nice python bench/new_rig_search.py --work /tmp/new-rig --rig cheap start --budget 8x4 --seeds 0,1,2,3,4,5
+    nice python bench/new_rig_search.py --work /tmp/new-rig --rig cheap safe --budget 16x8 --seeds 0 \
+        --sweep ~/.cache/uav-depth/safety-sweep/standard-640x480-...
 """
 
 from __future__ import annotations
@@ -20,12 +28,14 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import time
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-from new_rig import RIGS
+from new_rig import RIGS, measure
+from store_on_sweep import farther
 
 from uav_depth.cli.benchmark import machine_line
 from uav_depth.core.params import load_params
@@ -129,19 +139,72 @@ def start_compare(work: Path, base, budget: str, seeds: list[int]) -> None:
         executor.close()
 
 
+def safe_search(work: Path, base, budget: str, seeds: list[int], sweep_dir: str) -> None:
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    pop, gens = (int(x) for x in budget.split("x"))
+    held = frames(work / "held", sorted(p.name for p in (work / "held").iterdir()))
+    sweep = FrameSet("sweep", tuple(load_frame(r) for r in iter_frames(sweep_dir)))
+    bh, nb = score(base, held), farther(base, sweep)
+    mb = measure(base, held)
+    print(f"base: held out {bh:.2f} (flown), {nb} of {len(sweep)} sweep frames farther; held-out median "
+          f"{mb.median_pct:.2f} %, {mb.farther} farther, {mb.none} unmeasured")
+    space = SchemaSpace(FLOWN_KEYS)
+    names = [f"g{i:02d}" for i in range(space.size)]
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        start = optimizers.local_start(space, pop, rng, base, optimizers.TPE_LOCAL_FRACTION)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+            sampler = optuna.samplers.TPESampler(seed=seed, multivariate=True, n_startup_trials=len(start))
+        study = optuna.create_study(direction="minimize", sampler=sampler)
+        for genome in start:
+            study.enqueue_trial(dict(zip(names, map(float, genome))))
+        found: dict = {}
+
+        def objective(trial):
+            params = base.replace(**space.decode([trial.suggest_float(n, 0.0, 1.0) for n in names], base))
+            value = score(params, held)
+            over = math.inf if value is None else farther(params, sweep) - nb    # a failed one is infeasible
+            trial.set_constraint("over", over)         # feasible at <= 0: TPE models the infeasible apart
+            found[trial.number] = params
+            return math.inf if value is None else value
+
+        t0 = time.monotonic()
+        study.optimize(objective, n_trials=pop * gens)
+        ok = [t for t in study.trials if t.value is not None and math.isfinite(t.value)]
+        better = [t for t in ok if t.value < bh]
+        safe = [t for t in better if t.constraints["over"] <= 0]
+        line = (f"seed {seed}: {len(study.trials)} proposals ({time.monotonic() - t0:.0f} s), "
+                f"{len(study.trials) - len(ok)} failed, {len(better)} better than the base held out, "
+                f"{len(safe)} of them reading no more sweep frames farther")
+        if safe:
+            best = min(safe, key=lambda t: t.value)
+            m = measure(found[best.number], held)
+            line += (f"; the best: {best.value:.2f} (flown), {nb + int(best.constraints['over'])} sweep frames "
+                     f"farther, held-out median {m.median_pct:.2f} %, {m.farther} farther, {m.none} unmeasured")
+        print(line, flush=True)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("what", choices=("space", "start"))
+    ap.add_argument("what", choices=("space", "start", "safe"))
     ap.add_argument("--work", default="/tmp/new-rig", help="bench/new_rig.py's --work")
     ap.add_argument("--rig", default="cheap", choices=list(RIGS))
     ap.add_argument("--samples", type=int, default=60, help="space: genomes of each kind")
-    ap.add_argument("--budget", default="8x4", help="start: POPULATIONxGENERATIONS per fold")
-    ap.add_argument("--seeds", default="0,1,2,3,4,5", help="start: tune seeds")
+    ap.add_argument("--budget", default="8x4", help="start: POPULATIONxGENERATIONS per fold; safe: the search's")
+    ap.add_argument("--seeds", default="0,1,2,3,4,5", help="start, safe: tune seeds")
+    ap.add_argument("--sweep", help="safe: the rendered sweep at the rig (an entry of tune's --sweep-cache)")
     args = ap.parse_args()
     print(machine_line())
     work, base = Path(args.work) / args.rig, load_params(RIGS[args.rig].base_file())
     if args.what == "space":
         space_map(work, base, args.samples)
+    elif args.what == "safe":
+        if not args.sweep:
+            ap.error("safe needs --sweep")
+        safe_search(work, base, args.budget, [int(s) for s in args.seeds.split(",")], args.sweep)
     else:
         start_compare(work, base, args.budget, [int(s) for s in args.seeds.split(",")])
     return 0
