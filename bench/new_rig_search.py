@@ -179,11 +179,13 @@ def safe_search(work: Path, base, budget: str, seeds: list[int], sweep_dir: str)
         line = (f"seed {seed}: {len(study.trials)} proposals ({time.monotonic() - t0:.0f} s), "
                 f"{len(study.trials) - len(ok)} failed, {len(better)} better than the base held out, "
                 f"{len(safe)} of them reading no more sweep frames farther")
-        if safe:
-            best = min(safe, key=lambda t: t.value)
-            m = measure(found[best.number], held)
-            line += (f"; the best: {best.value:.2f} (flown), {nb + int(best.constraints['over'])} sweep frames "
-                     f"farther, held-out median {m.median_pct:.2f} %, {m.farther} farther, {m.none} unmeasured")
+        measured = sorted(((t.value, t, measure(found[t.number], held)) for t in safe), key=lambda r: r[0])
+        goal = [r for r in measured if r[2].median_pct < mb.median_pct and r[2].farther <= mb.farther]
+        line += f"; {len(goal)} of those range the held-out frames better with no more of them farther"
+        for what, rows in (("the best", measured[:1]), ("the best of those", goal[:1])):
+            for value, t, m in rows:
+                line += (f"; {what}: {value:.2f} (flown), {nb + int(t.constraints['over'])} sweep frames farther, "
+                         f"held-out median {m.median_pct:.2f} %, {m.farther} farther, {m.none} unmeasured")
         print(line, flush=True)
 
 
