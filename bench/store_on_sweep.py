@@ -7,7 +7,7 @@ read farther than the truth by more than 2 % (the sweep's first rule), the base'
 reads no more than the base is one a choice that looked further could have written::
 
     nice python bench/store_on_sweep.py REPORT/store.sqlite ~/.cache/uav-depth/safety-sweep/standard-1280x800-... \\
-        --base deploy/params-flight.yaml --stride 10
+        --base deploy/params-flight.yaml --base-value 12.41 --stride 10
 """
 
 from __future__ import annotations
