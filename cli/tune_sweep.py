@@ -77,7 +77,7 @@ def _truth(path: Path, index: int) -> float:
 
 
 def render_sweep(path: Path, items: list, workers: int, progress: Callable[[int, int], None],
-                 stop: threading.Event | None) -> None:
+                 stop: threading.Event | None, title: str = "the safety sweep") -> None:
     """Render the frames of ``items`` (key, SceneConfig) that ``path`` lacks, on ``workers`` processes."""
     from uav_depth.core.session import SessionWriter
     from uav_depth.tuning.study import TuneInterrupted
@@ -90,7 +90,7 @@ def render_sweep(path: Path, items: list, workers: int, progress: Callable[[int,
     if workers <= 1:
         for i in todo:
             if stop is not None and stop.is_set():
-                raise TuneInterrupted(f"interrupted while rendering the safety sweep ({done} of {len(items)} "
+                raise TuneInterrupted(f"interrupted while rendering {title} ({done} of {len(items)} "
                                       f"frames are kept in {path})")
             _render_one(str(path), i, *items[i])
             done += 1
@@ -109,7 +109,7 @@ def render_sweep(path: Path, items: list, workers: int, progress: Callable[[int,
             if stop is not None and stop.is_set():
                 for f in pending:
                     f.cancel()
-                raise TuneInterrupted(f"interrupted while rendering the safety sweep ({done} of {len(items)} "
+                raise TuneInterrupted(f"interrupted while rendering {title} ({done} of {len(items)} "
                                       f"frames are kept in {path})")
 
 
@@ -117,15 +117,15 @@ def safety_frames(sample, sweep: str = "standard", cache: str | None = None, wor
                   phase: Callable[[str], None] = lambda text: None,
                   progress: Callable[[int, int], None] = lambda done, total: None,
                   stop: threading.Event | None = None):
-    """The named sweep of uav_depth.sim.sweep (SWEEPS) at the rig of ``sample`` (a FrameData of the log: its image
-    size, focal length and baseline) as a :class:`~uav_depth.tuning.safety.SweepFrames` in the cache, rendered
-    there when the tune first needs it. ``cache``: the cache directory (None: :func:`default_cache`; "none": a
+    """The named sweep of uav_depth.sim.sweep (RENDERED: a safety sweep, or ``guide``, the search guide) at the rig
+    of ``sample`` (a FrameData of the log: its image size, focal length and baseline) as a
+    :class:`~uav_depth.tuning.safety.SweepFrames` in the cache, rendered there when the tune first needs it. ``cache``: the cache directory (None: :func:`default_cache`; "none": a
     temporary directory, removed at exit)."""
-    from uav_depth.sim.sweep import SWEEPS
+    from uav_depth.sim.sweep import RENDERED
     from uav_depth.tuning.safety import SweepFrames
 
     h, w = sample.left.shape[:2]
-    items = list(SWEEPS[sweep](w, h, sample.focal_px, sample.baseline_m))
+    items = list(RENDERED[sweep](w, h, sample.focal_px, sample.baseline_m))
     if cache == "none":
         import atexit
         import shutil
@@ -135,20 +135,22 @@ def safety_frames(sample, sweep: str = "standard", cache: str | None = None, wor
     else:
         root = Path(cache) if cache else default_cache()
     path = root / entry_name(sweep, items, w, h, sample.focal_px, sample.baseline_m)
+    prefix = "guide" if sweep == "guide" else "sweep"
+    title = "the search guide" if sweep == "guide" else "the safety sweep"
 
     def render() -> list[float]:
         index = path / INDEX
         if index.exists():
-            phase(f"the safety sweep at {w}x{h} ({len(items)} frames) from the cache {path}")
+            phase(f"{title} at {w}x{h} ({len(items)} frames) from the cache {path}")
         else:
-            phase(f"rendering the safety sweep at {w}x{h}, f {sample.focal_px:g} px, B {sample.baseline_m:g} m: "
+            phase(f"rendering {title} at {w}x{h}, f {sample.focal_px:g} px, B {sample.baseline_m:g} m: "
                   f"{len(items)} frames on {workers} worker(s), kept in {path} for the next tune on this rig")
             path.mkdir(parents=True, exist_ok=True)
-            render_sweep(path, items, workers, progress, stop)
+            render_sweep(path, items, workers, progress, stop, title)
             doc = {"keys": [k for k, _ in items], "truths": [_truth(path, i) for i in range(len(items))]}
             tmp = path / f".{INDEX}.tmp"
             tmp.write_text(json.dumps(doc))
             os.replace(tmp, index)
         return json.loads(index.read_text())["truths"]
 
-    return SweepFrames(str(path), [f"{i:06d}" for i in range(len(items))], [k for k, _ in items], render)
+    return SweepFrames(str(path), [f"{i:06d}" for i in range(len(items))], [k for k, _ in items], render, prefix)

@@ -69,6 +69,27 @@ def safety_sweep(width: int | None = None, height: int | None = None, focal_px: 
 #: The sweeps ``uav-depth tune --safety-sweep`` offers, by name.
 SWEEPS = {"standard": safety_sweep, "quick": quick_sweep}
 
+#: The search guide: what tune's search reads its candidates on while it searches, so that it looks where the
+#: safety sweep will pass (docs/tuning.md, *The search guide*). Every 20 cm from 0.4 to 3 m, where candidates fail
+#: the sweep on the rigs of bench/new_rig.py: leafy scenes on three seeds (nearly every sweep frame a candidate read
+#: farther than the base was a leafy one), plain and varied ones on one (a median error the sweep's accuracy rule
+#: refuses shows on a few frames). Seeds 20-22, neither the safety sweep's (10-14) nor the benchmarks' (0-9), so
+#: the gate's sweep stays a check of frames the search was not led by. 70 frames.
+GUIDE_DISTANCES = SAFETY_DISTANCES[8:]
+GUIDE_SEEDS = {"plain": (20,), "varied": (20,), "leafy": (20, 21, 22)}
+
+
+def search_guide(width: int | None = None, height: int | None = None, focal_px: float | None = None,
+                 baseline_m: float | None = None) -> Iterator[tuple[str, SceneConfig]]:
+    """(key, scene) of the search guide (GUIDE_DISTANCES x GUIDE_SEEDS per variant, 70 frames) at the given rig."""
+    for variant, seeds in GUIDE_SEEDS.items():
+        yield from (item for item in sweep_at(GUIDE_DISTANCES, seeds, width, height, focal_px, baseline_m)
+                    if item[0].startswith(f"{variant}-"))
+
+
+#: Every sweep tune renders at a log's rig, by name: the safety sweeps and the search guide.
+RENDERED = {**SWEEPS, "guide": search_guide}
+
 
 def render(cfg: SceneConfig) -> StereoFrame:
     """``cfg`` at the identity pose, its noise seeded by its seed: the same frame in every benchmark and in

@@ -5,8 +5,9 @@ from __future__ import annotations
 import math
 
 from uav_depth.sim.scene import SceneConfig
-from uav_depth.sim.sweep import (QUICK_DISTANCES, QUICK_SEEDS, SAFETY_DISTANCES, SAFETY_SEEDS, SWEEPS, VARIANTS,
-                                 at_rig, quick_sweep, render_with_truth, safety_sweep)
+from uav_depth.sim.sweep import (GUIDE_SEEDS, QUICK_DISTANCES, QUICK_SEEDS, RENDERED, SAFETY_DISTANCES, SAFETY_SEEDS,
+                                 SWEEPS, VARIANTS, at_rig, quick_sweep, render_with_truth, safety_sweep,
+                                 search_guide)
 
 
 def test_the_quick_sweep_covers_every_variant_seed_and_distance_once_at_the_rig_asked():
@@ -32,6 +33,23 @@ def test_the_safety_sweep_reaches_across_the_working_range_on_seeds_the_benchmar
     assert {c.seed for k, c in scenes if k.startswith("leafy")} == set(SAFETY_SEEDS)
     assert all((c.width, c.focal_px) == (640, 350.0) for _, c in scenes)
     assert set(SWEEPS) == {"standard", "quick"} and len(SAFETY_DISTANCES) == 22
+
+
+def test_the_search_guide_is_branches_across_the_working_range_on_seeds_no_check_uses():
+    """tune's search guide: every 20 cm from 0.4 to 3 m, leafy scenes (where candidates read branches farther) on
+    three seeds, plain and varied on one; seeds 20-22: none of the safety sweep's, which judges what the guide led
+    to, nor the benchmarks'."""
+    scenes = list(search_guide(640, 480, 500.0, 0.06))
+    assert len(scenes) == len({k for k, _ in scenes}) == 70
+    by_variant = {v: {int(k.split("-")[1][1:]) for k, _ in scenes if k.startswith(v + "-")} for v in VARIANTS}
+    assert by_variant == {"plain": {20}, "varied": {20}, "leafy": {20, 21, 22}} == {
+        v: set(s) for v, s in GUIDE_SEEDS.items()}
+    dists = sorted({c.branch_distance_m for _, c in scenes})
+    assert dists[0] == 0.4 and dists[-1] == 3.0 and len(dists) == 14
+    seeds = set().union(*by_variant.values())
+    assert seeds.isdisjoint(SAFETY_SEEDS) and seeds.isdisjoint(range(10))
+    assert all((c.width, c.height, c.focal_px, c.baseline_m) == (640, 480, 500.0, 0.06) for _, c in scenes)
+    assert set(RENDERED) == set(SWEEPS) | {"guide"} and "guide" not in SWEEPS
 
 
 def test_at_rig_keeps_the_scene_in_metres():
