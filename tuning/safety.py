@@ -52,9 +52,10 @@ class SweepFrames:
     a tune whose choice finds nothing better than the base never pays for it."""
 
     def __init__(self, path: str, frame_ids: Sequence[str], keys: Sequence[str],
-                 render: Callable[[], Sequence[float]]):
+                 render: Callable[[], Sequence[float]], prefix: str = "sweep"):
         self.path, self.frame_ids, self.keys = str(path), tuple(frame_ids), tuple(keys)
         self._render = render
+        self.prefix = prefix      # the executor's frame sets of it: prefix0, prefix1 ... (framesets)
         self._truths: tuple[float, ...] | None = None
 
     def __len__(self) -> int:
@@ -74,9 +75,9 @@ class SweepFrames:
         return [order[i:i + CHUNK] for i in range(0, len(order), CHUNK)]
 
     def framesets(self) -> dict[str, DiskFrames]:
-        """The executor's frame sets of the sweep, one per chunk (``sweep0``, ``sweep1`` ...): paths only, read
-        by the workers when a candidate is read."""
-        return {f"sweep{j}": DiskFrames(f"sweep{j}", [(self.path, self.frame_ids[i]) for i in idx])
+        """The executor's frame sets of the sweep, one per chunk (``sweep0``, ``sweep1`` ... with the default
+        prefix): paths only, read by the workers when a candidate is read."""
+        return {f"{self.prefix}{j}": DiskFrames(f"{self.prefix}{j}", [(self.path, self.frame_ids[i]) for i in idx])
                 for j, idx in enumerate(self.chunks())}
 
 
@@ -166,7 +167,7 @@ class SafetyScreen:
         sweep, n = self.sweep, len(self.sweep)
         truths = sweep.truths       # rendered here when no candidate needed the sweep before
         out = [math.nan] * n
-        tasks = [Task(params.to_dict(), f"sweep{j}", reading=True) for j in range(len(self._chunks))]
+        tasks = [Task(params.to_dict(), f"{sweep.prefix}{j}", reading=True) for j in range(len(self._chunks))]
         halt = threading.Event()
         read = farther = 0
         for j, ev in self.executor.imap(tasks, halt):
@@ -198,14 +199,13 @@ class SafetyScreen:
             first = f"the first {tuned.read} of " if tuned.read < len(sweep) else ""
             reasons.append(f"{who} {nt} of {first}the {len(sweep)} safety-sweep frame(s) farther than the truth by "
                            f"more than {FARTHER_TOL_PCT:g} %, the base {nb}")
-        both = _errors_both_read(sweep, base, tuned)
+        both = errors_both_read(sweep.keys, sweep.truths, base.distances, tuned.distances)
         pooled = [e for es in both.values() for e in es]
         mb, mt = ((statistics.median(e[i] for e in pooled) if pooled else None) for i in (0, 1))
         if tuned.read == len(sweep):
-            for variant, es in both.items():
-                vb, vt = statistics.median(e[0] for e in es), statistics.median(e[1] for e in es)
-                if vt > SWEEP_MEDIAN_FACTOR * vb + SWEEP_MEDIAN_SLACK_PCT:
-                    reasons.append(f"{who} the {len(es)} {variant} safety-sweep frame(s) both read with a median "
+            for variant, (n, vb, vt) in variant_medians(both).items():
+                if vt > median_limit_pct(vb):
+                    reasons.append(f"{who} the {n} {variant} safety-sweep frame(s) both read with a median "
                                    f"absolute error of {vt:.2f} %, above {SWEEP_MEDIAN_FACTOR:g} x the base's "
                                    f"{vb:.2f} % + {SWEEP_MEDIAN_SLACK_PCT:g}")
         return FartherCheck(nb, nt, len(sweep), "; ".join(reasons) or None, base_median=mb, tuned_median=mt)
@@ -227,10 +227,25 @@ def _farther(reading: Reading, sweep: SweepFrames) -> int:
     return sum(is_farther(None if math.isnan(d) else d, t) for d, t in zip(reading.distances, sweep.truths))
 
 
-def _errors_both_read(sweep: SweepFrames, base: Reading, tuned: Reading) -> dict[str, list[tuple[float, float]]]:
-    """Per scene variant: (base, tuned) absolute error % on the frames both read."""
+def errors_both_read(keys: Sequence[str], truths: Sequence[float], base: Sequence[float],
+                     tuned: Sequence[float]) -> dict[str, list[tuple[float, float]]]:
+    """Per scene variant (from the frame keys): (base, tuned) absolute error % on the frames both read (distances
+    in m, NaN where none was read)."""
     both: dict[str, list[tuple[float, float]]] = {}
-    for key, b, c, t in zip(sweep.keys, base.distances, tuned.distances, sweep.truths):
+    for key, b, c, t in zip(keys, base, tuned, truths):
         if math.isfinite(t) and t > 0 and math.isfinite(b) and math.isfinite(c):
             both.setdefault(_variant(key), []).append((abs(branch_signed(b, t)), abs(branch_signed(c, t))))
     return both
+
+
+def variant_medians(both: dict[str, list[tuple[float, float]]]) -> dict[str, tuple[int, float, float]]:
+    """Per scene variant of :func:`errors_both_read`: (frames both read, the base's and the candidate's median
+    absolute error %)."""
+    return {v: (len(es), statistics.median(e[0] for e in es), statistics.median(e[1] for e in es))
+            for v, es in both.items()}
+
+
+def median_limit_pct(base_median_pct: float) -> float:
+    """The sweep's accuracy rule: the most a candidate's median absolute error in a scene variant may be, given the
+    base's over the same frames (SWEEP_MEDIAN_FACTOR, SWEEP_MEDIAN_SLACK_PCT)."""
+    return SWEEP_MEDIAN_FACTOR * base_median_pct + SWEEP_MEDIAN_SLACK_PCT
