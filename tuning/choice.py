@@ -15,7 +15,7 @@ from typing import Any, Callable, Sequence
 from uav_depth.core.params import OPENCV_COST_MAX, StereoParams, params_from_dict
 
 from uav_depth.tuning.executor import Executor, run_all
-from uav_depth.tuning.objective import FITNESS, OK, Task
+from uav_depth.tuning.objective import FITNESS, OK, Evaluation, Task
 from uav_depth.tuning.robust import nudge_check
 from uav_depth.tuning.space import WINNABLE_COST_MAX
 from uav_depth.tuning.store import RunStore
@@ -78,13 +78,21 @@ class Selection:
         return self.winner != 0 and self.chosen[f"{key}_utility"] > self.base[f"{key}_utility"]
 
 
-def top_candidates(store: RunStore, fitness_name: str, n: int = SELECT_TOP) -> list[tuple[dict[str, Any], float]]:
-    """The ``n`` best distinct (params, train value) of every stored evaluation, best first."""
+def top_candidates(store: RunStore, fitness_name: str, n: int = SELECT_TOP, base_value: float | None = None,
+                   feasible: Callable[[Evaluation], bool] | None = None) -> list[tuple[dict[str, Any], float]]:
+    """The ``n`` best distinct (params, train value) of every stored evaluation, best first. With ``feasible``
+    (the search guide's, :mod:`.guide`) and the base's training value, the candidates that beat the base and
+    are feasible come first, each group best first: of the candidates with a gain, they are the ones the safety
+    sweep is likely to pass."""
     fitness = FITNESS[fitness_name]
-    rows = [(fitness.utility(ev.value), i, params, ev.value) for i, (_, params, ev) in enumerate(store.evaluations())
-            if ev.status == OK and not params.get("invalid")]
-    rows.sort(key=lambda r: (-r[0], r[1]))
-    return [(params, value) for _, _, params, value in rows[:n]]
+
+    def led(ev: Evaluation) -> bool:
+        return feasible is None or (fitness.utility(ev.value) > fitness.utility(base_value) and feasible(ev))
+
+    rows = [(not led(ev), -fitness.utility(ev.value), i, params, ev.value)
+            for i, (_, params, ev) in enumerate(store.evaluations()) if ev.status == OK and not params.get("invalid")]
+    rows.sort(key=lambda r: r[:3])
+    return [(params, value) for *_, params, value in rows[:n]]
 
 
 def select(executor: Executor, fitness_name: str, base: StereoParams, base_train: float,

@@ -105,6 +105,8 @@ class Decision:
     workers: int
     points: list[tuple[float, float]] = field(default_factory=list)
     frame_ms: tuple[float, float] | None = None
+    #: Per fold, what the search guide found (tune._guide_counts); None when the search had no guide.
+    guide: list[dict[str, Any]] | None = None
 
     @property
     def k(self) -> int:
@@ -158,7 +160,7 @@ class Decision:
                          "beats_base": v.beats, "farther": _farther_doc(v.farther),
                          "safety_sweep": None if v.safety is None else _farther_doc(v.safety),
                          "refused": self.refused, "blocked": self.blocked},
-                   frames=self.split.roles(), notes=list(self.split.notes),
+                   frames=self.split.roles(), notes=list(self.split.notes), guide=self.guide,
                    frame_ms=None if self.frame_ms is None else {"base": self.frame_ms[0], "tuned": self.frame_ms[1]},
                    references={n: self.framesets[n].reference_sources() for n in self.names},
                    evaluations_per_s=self.result.evaluated / self.result.wall_s if self.result.wall_s > 0 else None)

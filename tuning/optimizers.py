@@ -11,7 +11,8 @@ handed in.
   parameters.
 - ``random``: uniform random search on the improved space (plus the base).
 - ``tpe``: Optuna's tree-structured Parzen estimator on the improved space,
-  its first generation the base and neighbours of it.
+  its first generation the base and neighbours of it, led by the search
+  guide (a constraint per proposal, :mod:`.guide`) when the tune has one.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass
-from typing import Any, Callable, Protocol, Sequence
+from typing import Any, Callable, Mapping, Protocol, Sequence
 
 import numpy as np
 
@@ -134,12 +135,16 @@ class TPESearch:
         self.trials = [self.study.ask() for _ in range(self.n)]
         return [[t.suggest_float(name, 0.0, 1.0) for name in self.names] for t in self.trials]
 
-    def tell(self, utilities: Sequence[float]) -> None:
-        for t, u in zip(self.trials, utilities):
+    def tell(self, utilities: Sequence[float], constraints: Sequence[Mapping[str, float]] | None = None) -> None:
+        """``constraints``: each proposal's, by name (the search guide's, Study; none for a proposal not read on
+        it), feasible at 0 or less: TPE draws from the best feasible proposals and models the others apart."""
+        for i, (t, u) in enumerate(zip(self.trials, utilities)):
             if math.isnan(u) or u == -math.inf:
                 self.study.tell(t, state=self._fail)
-            else:
-                self.study.tell(t, min(u, 1e300))
+                continue
+            for name, value in (constraints[i] if constraints is not None else {}).items():
+                t.set_constraint(name, value)
+            self.study.tell(t, min(u, 1e300))
 
 
 @dataclass(frozen=True)
@@ -148,13 +153,16 @@ class OptimizerSpec:
     space: str  # "paper" or "schema"
     factory: Callable[[Space, int, np.random.Generator, StereoParams], Optimizer]
     doc: str
+    #: Takes constraints in ``tell(utilities, constraints)``: the study reads the search guide for it.
+    guided: bool = False
 
 
 OPTIMIZERS: dict[str, OptimizerSpec] = {
     "ga-paper": OptimizerSpec("ga-paper", "paper", paper_ga, "the paper's GA on the paper's 29 genes (faithful)"),
     "ga": OptimizerSpec("ga", "schema", improved_ga, "real-coded GA on the improved space, from the base"),
     "random": OptimizerSpec("random", "schema", RandomSearch, "uniform random search on the improved space"),
-    "tpe": OptimizerSpec("tpe", "schema", TPESearch, "Optuna TPE on the improved space"),
+    "tpe": OptimizerSpec("tpe", "schema", TPESearch, "Optuna TPE on the improved space, led by the search guide",
+                         guided=True),
 }
 
 

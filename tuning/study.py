@@ -22,8 +22,8 @@ import json
 import math
 import threading
 import time
-from dataclasses import asdict, dataclass, field
-from typing import Any, Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any, Callable, Mapping, Protocol, Sequence
 
 import numpy as np
 
@@ -115,22 +115,45 @@ class StudyResult:
 
 
 def candidate_key(params: Mapping[str, Any], frames_digest: str, metric: str,
-                  ranging: RangingConfig = FLOWN_RANGING) -> str:
+                  ranging: RangingConfig = FLOWN_RANGING, guide: str | None = None) -> str:
     """The cache key of one evaluation: the parameters, the frames, the fitness, the ranging settings it ranged
-    with and :data:`EVAL_VERSION`."""
-    blob = json.dumps({"p": params, "f": frames_digest, "m": metric, "r": asdict(ranging), "v": EVAL_VERSION},
-                      sort_keys=True, default=str)
+    with, the search guide it was read on (its ident, None: none) and :data:`EVAL_VERSION`."""
+    doc = {"p": params, "f": frames_digest, "m": metric, "r": asdict(ranging), "v": EVAL_VERSION}
+    if guide is not None:
+        doc["g"] = guide
+    blob = json.dumps(doc, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:24]
 
 
+class Guide(Protocol):
+    """What a study asks of a search guide (:class:`~uav_depth.tuning.guide.SearchGuide`)."""
+
+    ident: str
+
+    def read_base(self, executor: Executor, base: StereoParams, stop: threading.Event | None = None) -> None: ...
+
+    def tasks(self, params: Mapping[str, Any]) -> list[Task]: ...
+
+    def judge(self, readings: Sequence[Evaluation]) -> dict[str, float] | str: ...
+
+    def constraints(self, ev: Evaluation) -> dict[str, float]: ...
+
+
 class Study:
-    """Runs ``config`` on ``train`` frames through ``executor``, caching in ``store``."""
+    """Runs ``config`` on ``train`` frames through ``executor``, caching in ``store``.
+
+    ``guide``: the search guide (:mod:`.guide`), whose frame sets the executor holds. For an optimiser that takes
+    constraints (``OptimizerSpec.guided``: TPE) each candidate that beats the base is read on it, its guide
+    metrics are stored with its evaluation and are its constraints (feasible at 0 or less); the others search on
+    the fitness alone and the guide is not read."""
 
     def __init__(self, config: StudyConfig, train: FrameSet, executor: Executor, store: RunStore,
                  base: StereoParams, progress: Callable[[int, float], None] | None = None,
                  stop: threading.Event | None = None, timeout_s: float | None = None, frameset: str = "train",
-                 ranging: RangingConfig = FLOWN_RANGING):
+                 ranging: RangingConfig = FLOWN_RANGING, guide: Guide | None = None):
         self.config, self.train, self.executor, self.store, self.base = config, train, executor, store, base
+        self.guide = guide if OPTIMIZERS[config.optimizer].guided else None
+        self._base_value: float | None = None     # the base's fitness here, once evaluated: the guide reads gains
         self.ranging = ranging        # what the executor ranges with: part of every cache key
         self.frameset = frameset      # the executor's name of ``train`` (a fold's training set: "train1" ...)
         self.timeout_s = timeout_s
@@ -155,7 +178,8 @@ class Study:
         return {"metric": self.config.metric, "optimizer": self.config.optimizer,
                 "population": self.config.population, "seed": self.config.seed, "space": describe_space(self.space),
                 "frames": self.digest, "frame_keys": self.train.keys, "base": self.base.to_dict(),
-                "ranging": asdict(self.ranging), "eval_version": EVAL_VERSION}
+                "ranging": asdict(self.ranging), "eval_version": EVAL_VERSION,
+                "guide": None if self.guide is None else self.guide.ident}
 
     def open(self, resume: bool) -> None:
         """Record this study in the store, or check it matches the stored one on ``resume``."""
@@ -201,20 +225,59 @@ class Study:
         if n_cached:
             self.progress(n_cached, math.nan)
         keys = list(todo)
-        tasks = [Task(todo[k][0], self.frameset) for k in keys]   # every executor starts nothing once stop is set
-        for j, ev in self.executor.imap(tasks, self.stop):
-            key = keys[j]
+
+        def finish(i: int, ev: Evaluation) -> None:
+            key = keys[i]
             params, idx = todo[key]
             self.store.put(key, params, params_from_dict(params).hash(), ev)
             self._memo[key] = ev
             self.evaluated += 1
             self.cached += len(idx) - 1       # the same candidate proposed again in this batch: answered once
-            for i in idx:
-                out[i] = ev
+            for n in idx:
+                out[n] = ev
             self.progress(len(idx), ev.value if ev.ok else math.nan)
+
+        tasks = [Task(todo[k][0], self.frameset) for k in keys]
+        gained = []                  # (i, fitness) of the candidates with a gain: read on the guide next
+        for j, ev in self.executor.imap(tasks, self.stop):   # every executor starts nothing once stop is set
+            if self._read_on_guide(ev):
+                gained.append((j, ev))
+            else:
+                finish(j, ev)
+        if gained:
+            self._guide_pass(gained, [todo[keys[i]][0] for i, _ in gained], finish)
         if any(o is None for o in out):
             raise self.interrupted()
         return out  # type: ignore[return-value]
+
+    def _read_on_guide(self, ev: Evaluation) -> bool:
+        """Whether a candidate is read on the guide: it beats the base on the training frames (the base itself is
+        read by the guide, once)."""
+        return (self.guide is not None and self._base_value is not None and ev.ok
+                and self.fitness.utility(ev.value) > self.fitness.utility(self._base_value))
+
+    def _guide_pass(self, gained: list[tuple[int, Evaluation]], params: list[dict[str, Any]],
+                    finish: Callable[[int, Evaluation], None]) -> None:
+        """Read ``gained`` candidates on the guide, each finished with its guide metrics as soon as it is read
+        (or failed with the reason it could not be read)."""
+        tasks, owner = [], []
+        for n, p in enumerate(params):
+            mine = self.guide.tasks(p)
+            tasks += mine
+            owner += [n] * len(mine)
+        per = len(tasks) // len(gained)
+        parts: dict[int, dict[int, Evaluation]] = {n: {} for n in range(len(gained))}
+        for j, got in self.executor.imap(tasks, self.stop):
+            n = owner[j]
+            parts[n][j] = got
+            if len(parts[n]) < per:
+                continue
+            mine = parts.pop(n)
+            i, ev = gained[n]
+            judged = self.guide.judge([mine[m] for m in sorted(mine)])
+            seconds = ev.seconds + sum(r.seconds for r in mine.values())
+            finish(i, failed(self.fitness, judged, seconds) if isinstance(judged, str)
+                   else replace(ev, metrics={**ev.metrics, **judged}, seconds=seconds))
 
     def interrupted(self) -> TuneInterrupted:
         return TuneInterrupted(f"interrupted: {self.store.count()} evaluations are kept in {self.store.path}; "
@@ -231,7 +294,8 @@ class Study:
         return self.key(params), params, None
 
     def key(self, params: Mapping[str, Any]) -> str:
-        return candidate_key(params, self.digest, self.config.metric, self.ranging)
+        return candidate_key(params, self.digest, self.config.metric, self.ranging,
+                             None if self.guide is None else self.guide.ident)
 
     def baseline(self) -> Evaluation:
         params = self.base.to_dict()
@@ -254,7 +318,10 @@ class Study:
             before = self.evaluated
             evs = self.evaluate(cands)
             utilities = [self.fitness.utility(ev.value) if ev.ok else -math.inf for ev in evs]
-            opt.tell(utilities)
+            if self.guide is None:
+                opt.tell(utilities)
+            else:
+                opt.tell(utilities, [self.guide.constraints(ev) for ev in evs])
             self.store.put_trials(run, gen, [c[0] for c in cands], utilities)
             for (key, params, _), ev, u in zip(cands, evs, utilities):
                 res.proposals += 1
@@ -271,7 +338,10 @@ class Study:
         t0 = time.perf_counter()
         if self.timeout_s is not None:
             self._deadline = time.monotonic() + self.timeout_s
+        if self.guide is not None:
+            self.guide.read_base(self.executor, self.base, self.stop)
         baseline = self.baseline()
+        self._base_value = baseline.value if baseline.ok else None
         seeds = np.random.SeedSequence(self.config.seed).spawn(self.config.runs)
         runs = []
         for i, s in enumerate(seeds):

@@ -26,8 +26,9 @@ from uav_depth.tuning.executor import Executor, make_executor
 from uav_depth.tuning.frames import FrameData, FrameSet
 from uav_depth.tuning.front import choose_under_budget, search_front, time_params
 from uav_depth.tuning.gate import Decision, Verdict, refusal
+from uav_depth.tuning.guide import SearchGuide
 from uav_depth.tuning.objective import FITNESS, FLOWN_FITNESS, FLOWN_RANGING, Task, default_convention
-from uav_depth.tuning.optimizers import make_space
+from uav_depth.tuning.optimizers import OPTIMIZERS, make_space
 from uav_depth.tuning.robust import CrossSelection, cross_select, farther_check
 from uav_depth.tuning.safety import UNSAFE, SafetyScreen, SweepFrames, rig_sample
 from uav_depth.tuning.space import describe_space, parse_keys
@@ -76,6 +77,8 @@ class TuneRequest:
     #: The safety sweep rendered at the rig of a given frame of the log (its size, focal length and baseline),
     #: as a session on disk, or None for no safety sweep. Injected by the caller: the tuner renders nothing.
     safety: Callable[[FrameData], SweepFrames] | None = None
+    #: The search guide (:mod:`.guide`) at that rig, the same way; None: the search reads no guide.
+    guide: Callable[[FrameData], SweepFrames] | None = None
 
     def __post_init__(self) -> None:
         if self.timeout_s is not None and not self.timeout_s > 0:
@@ -132,13 +135,16 @@ class Sealed:
         return getattr(self._executor, name)
 
 
-def _sweep(request: TuneRequest, split: Split) -> SweepFrames | None:
-    """The safety sweep at the rig most training frames share, to be rendered when a candidate first needs it
-    (or found in the caller's cache)."""
-    sample = rig_sample(split.folds[0][0]) if request.safety is not None else None
+def _at_rig(request: TuneRequest, split: Split) -> tuple[SweepFrames | None, SearchGuide | None]:
+    """The safety sweep and the search guide at the rig most training frames share, each rendered when first
+    needed (or found in the caller's cache); None for what the request has not, or without a calibrated frame.
+    The guide only for an optimiser that takes it."""
+    sample = rig_sample(split.folds[0][0])
     if sample is None:
-        return None
-    return request.safety(sample)
+        return None, None
+    sweep = request.safety(sample) if request.safety is not None else None
+    guided = request.guide is not None and OPTIMIZERS[request.config.optimizer].guided
+    return sweep, SearchGuide(request.guide(sample)) if guided else None
 
 
 def tune(request: TuneRequest, hooks: Hooks = Hooks()) -> Decision:
@@ -151,8 +157,9 @@ def tune(request: TuneRequest, hooks: Hooks = Hooks()) -> Decision:
     roles = split.roles()
     hooks.phase(f"{len(roles['train'])} training, {len(roles['validation'])} validation and {len(roles['test'])} "
                 "test frame(s): the search trains, the choice chooses, the gate judges on the test frames alone")
-    sweep = _sweep(request, split)
-    framesets = {**split.framesets(), **(sweep.framesets() if sweep is not None else {})}
+    sweep, guide = _at_rig(request, split)
+    framesets = {**split.framesets(), **(sweep.framesets() if sweep is not None else {}),
+                 **(guide.frames.framesets() if guide is not None else {})}
     tuned_keys = [d["key"] for d in describe_space(make_space(request.config.optimizer, request.config.keys))["dims"]]
     direction = "minimize" if fitness.direction < 0 else "maximize"
     stores = [RunStore(request.store_path, direction, tuned_keys, study_name=fold_study_name(j))
@@ -165,7 +172,7 @@ def tune(request: TuneRequest, hooks: Hooks = Hooks()) -> Decision:
                 hooks.phase(f"starting {executor.workers} evaluating processes (each loads the frames once)")
                 executor.warm(lambda done, total: hooks.step("evaluating processes started", done, total))
             screen = SafetyScreen(sweep, request.base, executor, hooks.step, hooks.stop, hooks.phase)
-            searches = _search(request, split, executor, stores, hooks)
+            searches = _search(request, split, executor, stores, hooks, guide)
             selection, selections, cross = _choose(request, split, executor, searches, screen, tuned_keys, hooks)
             decision = _judge(request, split, framesets, executor, searches, selection, selections, cross,
                               screen, hooks)
@@ -188,11 +195,13 @@ class _Search:
     result: StudyResult
     candidates: list[tuple[dict[str, Any], float]]
     budget: dict[str, Any] | None = None
+    guide: dict[str, Any] | None = None
 
 
 def _search(request: TuneRequest, split: Split, executor: Executor, stores: list[RunStore],
-            hooks: Hooks) -> list[_Search]:
-    """Every fold's search on its training frames, in turn, under one deadline; the bar counts all of them."""
+            hooks: Hooks, guide: SearchGuide | None = None) -> list[_Search]:
+    """Every fold's search on its training frames, in turn, under one deadline; the bar counts all of them. With
+    ``guide``, each search is led by it and its choice takes the candidates it found feasible first."""
     config = request.config
     hooks.begin(split.k * (config.runs * config.budget + 1))
     deadline = None if request.timeout_s is None else time.monotonic() + request.timeout_s
@@ -200,13 +209,19 @@ def _search(request: TuneRequest, split: Split, executor: Executor, stores: list
     for j, ((tn, _), (tr, _), st) in enumerate(zip(set_names(split.k), split.folds, stores)):
         left = None if deadline is None else max(1e-3, deadline - time.monotonic())
         study = Study(config, tr, executor, st, request.base, progress=hooks.progress, stop=hooks.stop,
-                      timeout_s=left, frameset=tn, ranging=request.ranging)
+                      timeout_s=left, frameset=tn, ranging=request.ranging, guide=guide)
         study.open(request.resume)
+        if j == 0 and guide is not None:
+            hooks.phase(f"the search reads each candidate that beats the base on the {len(guide)} frames of the "
+                        "search guide too (branches at the log's rig, seeds the safety sweep does not use)")
         result = study.run()
         if j == split.k - 1:
             hooks.searched()
         result.best_params()        # raises when every candidate failed
-        search = _Search(study, result, top_candidates(st, config.metric, SELECT_POOL))
+        search = _Search(study, result, top_candidates(st, config.metric, SELECT_POOL, result.baseline.value,
+                                                       None if guide is None else guide.feasible),
+                         guide=None if guide is None else _guide_counts(st, config.metric, guide,
+                                                                        result.baseline.value))
         if request.max_ms is not None:
             hooks.phase(f"re-timing the search front under --max-ms {request.max_ms:g}")
             choice = choose_under_budget(st, config.metric, tr, request.max_ms)
@@ -216,6 +231,16 @@ def _search(request: TuneRequest, split: Split, executor: Executor, stores: list
             search.candidates = [] if choice.params is None else [(choice.params.to_dict(), choice.value)]
         out.append(search)
     return out
+
+
+def _guide_counts(store: RunStore, metric: str, guide: SearchGuide, base_value: float) -> dict[str, Any]:
+    """What the guide found in one search: its frames, the base's reading there, the candidates evaluated, those
+    that beat the base on the training frames (each read on the guide) and those of them that passed its rules."""
+    utility = FITNESS[metric].utility
+    evs = [ev for _, params, ev in store.evaluations() if ev.ok and not params.get("invalid")]
+    better = [ev for ev in evs if utility(ev.value) > utility(base_value)]
+    return {"frames": len(guide), "base_farther": guide.base_farther, "candidates": len(evs), "better": len(better),
+            "better_and_feasible": sum(guide.feasible(ev) for ev in better)}
 
 
 def _choose(request: TuneRequest, split: Split, executor: Executor, searches: list[_Search],
@@ -290,5 +315,6 @@ def _judge(request: TuneRequest, split: Split, framesets: dict[str, Any], execut
         frame_ms = (time_params(base, timing, repeats=1), time_params(chosen, timing, repeats=1))
     return Decision(request, split, framesets, names, [s.study for s in searches], [s.result for s in searches],
                     selection, selections, cross, chosen, scores, verdict, budget, [], blocked, executor.kind,
-                    executor.workers, frame_ms=frame_ms)
+                    executor.workers, frame_ms=frame_ms,
+                    guide=None if searches[0].guide is None else [s.guide for s in searches])
 

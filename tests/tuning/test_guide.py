@@ -1,0 +1,175 @@
+"""tuning.guide: the search guide that leads TPE's search to where the safety sweep will pass."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from uav_depth.core.errors import ConfigError
+from uav_depth.core.params import params_from_dict
+from uav_depth.core.session import SessionWriter
+from uav_depth.sim.sweep import VARIANTS, at_rig, render_with_truth
+from uav_depth.tuning.choice import top_candidates
+from uav_depth.tuning.executor import SerialExecutor
+from uav_depth.tuning.guide import FARTHER, FARTHER_OVER, MEDIAN_OVER, SearchGuide
+from uav_depth.tuning.metrics import is_farther
+from uav_depth.tuning.objective import OK, Evaluation, branch_distances
+from uav_depth.tuning.optimizers import OPTIMIZERS, TPESearch
+from uav_depth.tuning.safety import SweepFrames
+from uav_depth.tuning.space import SchemaSpace
+from uav_depth.tuning.store import RunStore
+from uav_depth.tuning.study import Study, StudyConfig, candidate_key
+
+from .conftest import TINY, TINY_BASE
+
+#: Six leafy and six plain branches at the tiny rig: three chunks of the executor's tasks.
+DISTANCES = (0.6, 0.8, 1.0, 1.2, 1.4, 1.6)
+
+
+@pytest.fixture(scope="module")
+def guide_frames(tmp_path_factory) -> SweepFrames:
+    path = tmp_path_factory.mktemp("guide") / "guide"
+    items = [(f"{v}-s20-{d:.2f}m", at_rig(VARIANTS[v](d, 20), TINY["width"], TINY["height"], TINY["focal_px"],
+                                          0.06)) for v in ("leafy", "plain") for d in DISTANCES]
+
+    def render():
+        truths = []
+        for i, (_, cfg) in enumerate(items):
+            left, right, truth, roi = render_with_truth(cfg)
+            SessionWriter(path, cfg.calibration).write(i, left, right, meta={"branch_distance_m": truth,
+                                                                            "roi": list(roi)})
+            truths.append(truth)
+        return truths
+    return SweepFrames(str(path), [f"{i:06d}" for i in range(len(items))], [k for k, _ in items], render, "guide")
+
+
+#: A poor base (large blocks blur the branch's edges) that about half of a small search's candidates beat.
+POOR_BASE = TINY_BASE.replace(**{"sgbm.block_size": 15})
+
+
+def _study(frames, guide_frames, optimizer, store=None, base=TINY_BASE, **cfg):
+    guide = SearchGuide(guide_frames)
+    executor = SerialExecutor({"train": frames, **guide_frames.framesets()}, "flown")
+    config = StudyConfig(**{"optimizer": optimizer, "population": 6, "generations": 2, "seed": 3, **cfg})
+    return Study(config, frames, executor, store or RunStore(":memory:"), base, guide=guide), executor
+
+
+def _farther_on(params, guide_frames) -> int:
+    """The guide frames ``params`` reads farther than the truth, counted afresh as the safety sweep counts."""
+    from uav_depth.core.session import iter_frames
+    from uav_depth.tuning.frames import FrameSet, load_frame
+
+    fs = FrameSet("g", tuple(load_frame(r) for r in iter_frames(guide_frames.path)))
+    return sum(is_farther(None if d is None or not math.isfinite(d) else d, f.branch_distance_m)
+               for d, f in zip(branch_distances(params, fs), fs.frames))
+
+
+def test_a_guided_study_reads_each_candidate_with_a_gain_on_the_guide_as_the_safety_sweep_counts(tiny_frames,
+                                                                                                 guide_frames):
+    """The base is read once; each candidate that beats it on the training frames is read on the guide and its
+    metrics stored: frames read farther (as counted afresh), how many more than the base, and its worst scene
+    variant's median error over the sweep rule's limit. The others are not read."""
+    study, ex = _study(tiny_frames, guide_frames, "tpe", generations=3, base=POOR_BASE)
+    with ex:
+        result = study.run()
+    assert study.guide.base_farther == _farther_on(POOR_BASE, guide_frames)
+    base = result.baseline.value
+    rows = [(params, ev) for _, params, ev in study.store.evaluations() if ev.ok]
+    gained = [(p, ev) for p, ev in rows if ev.value < base]
+    assert 3 <= len(gained) < len(rows)
+    assert all(FARTHER in ev.metrics for _, ev in gained) and not any(FARTHER in ev.metrics for p, ev in rows
+                                                                       if ev.value >= base)
+    counts = {ev.metrics[FARTHER] for _, ev in gained}
+
+    for pick in (min, max):
+        params, ev = pick(gained, key=lambda r: r[1].metrics[FARTHER])
+        assert ev.metrics[FARTHER] == _farther_on(params_from_dict(params), guide_frames)
+        assert ev.metrics[FARTHER_OVER] == ev.metrics[FARTHER] - study.guide.base_farther
+    assert len(counts) > 1                                       # the guide tells candidates apart
+    assert all(math.isfinite(ev.metrics[MEDIAN_OVER]) for _, ev in gained)
+    assert study.identity()["guide"] == SearchGuide(guide_frames).ident
+
+
+def test_the_guides_median_rule_is_the_safety_sweeps(guide_frames):
+    """A candidate that reads every plain frame 5 % long and the rest as the base exceeds the limit by 5 - (1.1 x
+    the base's median + 0.25) points; one that reads as the base is 0.25 + 0.1 x its median under it."""
+    from uav_depth.tuning.metrics import branch_signed
+    from uav_depth.tuning.objective import OK, Evaluation
+    from uav_depth.tuning.safety import median_limit_pct
+
+    guide = SearchGuide(guide_frames)
+    truths = guide_frames.truths
+    base = [t * 1.01 for t in truths]                       # 1 % long everywhere
+    guide._base, guide.base_farther = tuple(base), 0
+    long = [t * 1.05 if k.startswith("plain") else b for k, t, b in zip(guide_frames.keys, truths, base)]
+
+    def readings(distances):
+        return [Evaluation(OK, math.nan, per_frame=tuple(distances[i] for i in idx)) for idx in guide_frames.chunks()]
+
+    mb = abs(branch_signed(base[0], truths[0]))
+    same, worse = guide.judge(readings(base)), guide.judge(readings(long))
+    assert same[FARTHER] == 0 and same[MEDIAN_OVER] == pytest.approx(mb - median_limit_pct(mb))
+    assert worse[FARTHER] == 6 and worse[FARTHER_OVER] == 6                   # 5 % long is farther than 2 %
+    assert worse[MEDIAN_OVER] == pytest.approx(abs(branch_signed(long[-1], truths[-1])) - median_limit_pct(mb),
+                                               abs=1e-6)
+
+
+def test_only_an_optimiser_that_takes_constraints_reads_the_guide(tiny_frames, guide_frames):
+    assert [name for name, spec in OPTIMIZERS.items() if spec.guided] == ["tpe"]
+    study, ex = _study(tiny_frames, guide_frames, "ga", generations=1)
+    with ex:
+        study.run()
+    assert study.guide is None and study.identity()["guide"] is None
+    assert all(FARTHER not in ev.metrics for _, _, ev in study.store.evaluations())
+
+
+def test_the_guide_is_part_of_the_cache_key_and_of_what_a_resumed_study_must_share(tiny_frames, guide_frames,
+                                                                                  tmp_path):
+    params = TINY_BASE.to_dict()
+    assert candidate_key(params, "d", "flown") != candidate_key(params, "d", "flown", guide="guide-640x480-x")
+    assert candidate_key(params, "d", "flown", guide="a") != candidate_key(params, "d", "flown", guide="b")
+    store = tmp_path / "s.sqlite"
+    first, ex = _study(tiny_frames, guide_frames, "tpe", RunStore(store), generations=1)
+    with ex:
+        first.open(False)
+        first.run()
+    first.store.close()
+    unguided = Study(first.config, tiny_frames, ex, RunStore(store), TINY_BASE)
+    with pytest.raises(ConfigError, match=r"--resume \(guide\)"):
+        unguided.open(True)
+
+
+def test_tpe_takes_each_proposals_guide_constraints():
+    opt = TPESearch(SchemaSpace(), 4, np.random.default_rng(0), TINY_BASE)
+    opt.ask()
+    opt.tell([1.0, 2.0, -math.inf, 3.0], [{"farther": 0.0, "median": -0.3}, {"farther": 3.0, "median": 0.5}, {},
+                                          {}])
+    trials = opt.study.trials
+    assert [t.constraints for t in trials] == [{"farther": 0.0, "median": -0.3}, {"farther": 3.0, "median": 0.5},
+                                               {}, {}]
+    assert trials[2].state.name == "FAIL"
+    ev = Evaluation(OK, 1.0, {FARTHER: 4, FARTHER_OVER: 0, MEDIAN_OVER: -0.2})
+    assert SearchGuide.constraints(ev) == {"farther": 0.0, "median": -0.2} and SearchGuide.feasible(ev)
+    assert not SearchGuide.feasible(Evaluation(OK, 1.0, {FARTHER: 5, FARTHER_OVER: 1, MEDIAN_OVER: -0.2}))
+    assert not SearchGuide.feasible(Evaluation(OK, 1.0, {FARTHER: 4, FARTHER_OVER: 0, MEDIAN_OVER: 0.1}))
+    assert not SearchGuide.feasible(Evaluation(OK, 1.0)) and SearchGuide.constraints(Evaluation(OK, 1.0)) == {}
+
+
+def _ev(value: float, over: int | None) -> Evaluation:
+    return Evaluation(OK, value, {} if over is None else {FARTHER: 5 + over, FARTHER_OVER: over, MEDIAN_OVER: -1.0})
+
+
+def test_the_choice_takes_the_candidates_that_beat_the_base_and_pass_the_guide_first():
+    """Base: flown 10. Best first among those with a gain that pass the guide; one that passes without a gain
+    (it measures little, so it reads little farther) does not jump ahead of better ones."""
+    store = RunStore(":memory:")
+    rows = {"a": (8.0, 4), "b": (9.0, 0), "c": (9.5, -3), "d": (12.0, None), "e": (7.0, 1), "f": (11.0, -5)}
+    for i, (name, (value, over)) in enumerate(rows.items()):
+        params = TINY_BASE.replace(**{"sgbm.p1": 8 + i}).to_dict()
+        params["name"] = name
+        store.put(name, params, None, _ev(value, over))
+    order = [p["name"] for p, _ in top_candidates(store, "flown", 6, 10.0, SearchGuide.feasible)]
+    assert order == ["b", "c", "e", "a", "f", "d"]
+    assert [p["name"] for p, _ in top_candidates(store, "flown", 6)] == ["e", "a", "b", "c", "f", "d"]

@@ -1,0 +1,112 @@
+"""The search guide: sweep-like leafy branches at the log's rig (``sim.sweep.search_guide``, 70 frames, rendered
+by the caller as the safety sweep is) that the search reads every candidate on while it searches.
+
+Why: on a rig no shipped file was made for, the fitness alone climbs into parameter sets that read more leafy
+branches farther than the truth; the safety sweep then refuses every candidate the choice looks at and the tune
+keeps its base, although sets both better and safe exist (bench/new_rig_search.py ``safe``). The guide tells the
+search where that region is. A candidate is *feasible* when it passes the safety
+sweep's two rules on the guide's frames: no more frames read farther than the truth (by more than
+FARTHER_TOL_PCT) than the base, and in each scene variant a median absolute error within the sweep's limit of the
+base's. TPE models feasible and infeasible proposals apart (Optuna's trial constraints) and the choice takes the
+feasible candidates with a gain first (:func:`choice.top_candidates`). Only a candidate that beats the base on its
+training frames is read on the guide: one that does not can win nothing, and reading it would double the
+search's cost.
+
+The guide leads the search, it judges nothing: its scenes are drawn from other seeds than the safety sweep's, and
+the sweep still checks every candidate about to win and the chosen one.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+from uav_depth.core.errors import UavDepthError
+from uav_depth.core.params import StereoParams
+
+from uav_depth.tuning.executor import Executor
+from uav_depth.tuning.metrics import is_farther
+from uav_depth.tuning.objective import Evaluation, Task
+from uav_depth.tuning.safety import SweepFrames, errors_both_read, median_limit_pct, variant_medians
+
+#: What a candidate's evaluation holds of its guide reading (its metrics): the guide frames it read farther than
+#: the truth, how many more than the base (the first rule's constraint) and by how many points its worst scene
+#: variant's median absolute error exceeds the limit the base sets (the second rule's; 0 when no frame was read by
+#: both). The constraints are feasible at 0 or less.
+FARTHER, FARTHER_OVER, MEDIAN_OVER = "guide_farther", "guide_farther_over", "guide_median_over"
+#: The constraints' names as Optuna records them on each trial, by metric.
+CONSTRAINTS = {FARTHER_OVER: "farther", MEDIAN_OVER: "median"}
+
+
+class SearchGuide:
+    """The guide's frames (a :class:`~uav_depth.tuning.safety.SweepFrames` whose frame sets the executor holds)
+    and the sweep's rules on them: :meth:`read_base` once, then per candidate :meth:`tasks` to read it and
+    :meth:`judge` of what they read; :meth:`constraints` and :meth:`feasible` of a stored evaluation."""
+
+    def __init__(self, frames: SweepFrames):
+        self.frames = frames
+        self._chunks = frames.chunks()
+        self._base: tuple[float, ...] | None = None
+        self.base_farther: int | None = None
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    @property
+    def ident(self) -> str:
+        """What names the guide in cache keys and in a resumed study: its cache entry (rig, scenes, renderer)."""
+        return Path(self.frames.path).name
+
+    def tasks(self, params: Mapping[str, Any]) -> list[Task]:
+        """The tasks that read ``params`` on every guide frame, in chunk order."""
+        return [Task(dict(params), f"{self.frames.prefix}{j}", reading=True) for j in range(len(self._chunks))]
+
+    def _distances(self, readings: Sequence[Evaluation]) -> tuple[float, ...] | str:
+        """Per guide frame, the distance read (m, NaN: none), from :meth:`tasks`' evaluations; or why not."""
+        out = [math.nan] * len(self.frames)
+        for idx, reading in zip(self._chunks, readings):
+            if not reading.ok:
+                return f"the search guide: {reading.reason}"
+            for i, d in zip(idx, reading.per_frame):
+                out[i] = d
+        return tuple(out)
+
+    def _farther(self, distances: Sequence[float]) -> int:
+        return sum(is_farther(None if math.isnan(d) else d, t) for d, t in zip(distances, self.frames.truths))
+
+    def read_base(self, executor: Executor, base: StereoParams, stop: threading.Event | None = None) -> None:
+        """Render the guide (or find it in the caller's cache) and read the base on it, once."""
+        if self._base is not None:
+            return
+        self.frames.truths
+        got = dict(executor.imap(self.tasks(base.to_dict()), stop))
+        if len(got) < len(self._chunks):
+            return                  # stopped: the study raises its own interruption next
+        distances = self._distances([got[j] for j in range(len(self._chunks))])
+        if isinstance(distances, str):
+            raise UavDepthError(f"the base parameters cannot be read on the search guide: {distances}")
+        self._base, self.base_farther = distances, self._farther(distances)
+
+    def judge(self, readings: Sequence[Evaluation]) -> dict[str, float] | str:
+        """The guide metrics of one candidate read by :meth:`tasks` (after :meth:`read_base`), or why it could not
+        be read (the safety sweep would refuse it for the same reason)."""
+        assert self._base is not None and self.base_farther is not None, "read_base first"
+        distances = self._distances(readings)
+        if isinstance(distances, str):
+            return distances
+        n = self._farther(distances)
+        medians = variant_medians(errors_both_read(self.frames.keys, self.frames.truths, self._base, distances))
+        over = max((vt - median_limit_pct(vb) for _, vb, vt in medians.values()), default=0.0)
+        return {FARTHER: n, FARTHER_OVER: n - self.base_farther, MEDIAN_OVER: over}
+
+    @staticmethod
+    def constraints(ev: Evaluation) -> dict[str, float]:
+        """The constraints of a candidate read on the guide, by Optuna's name; none for one not read."""
+        return {name: float(ev.metrics[key]) for key, name in CONSTRAINTS.items() if key in ev.metrics}
+
+    @staticmethod
+    def feasible(ev: Evaluation) -> bool:
+        """Read on the guide, and it passes both rules there."""
+        return ev.ok and all(key in ev.metrics and ev.metrics[key] <= 0 for key in CONSTRAINTS)
