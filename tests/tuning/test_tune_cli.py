@@ -273,6 +273,25 @@ def test_the_safety_sweep_runs_at_the_logs_rig_and_is_reported(tiny_session, tmp
     assert json.loads((tmp_path / "rep2" / "summary.json").read_text())["gate"]["safety_sweep"] is None
 
 
+def test_a_tpe_tune_is_led_by_the_search_guide_and_says_what_it_found(tiny_session, tmp_path):
+    """With a safety sweep, TPE reads each candidate that beats the base on the 70 frames of the search guide at
+    the log's rig too; what it found is printed and in summary.json, per fold. Without a sweep there is no
+    guide."""
+    args = ["tune", tiny_session / "s", "--base", tiny_session / "base.yaml", "--population", "6",
+            "--generations", "2", "--seed", "2", "--workers", "1", "--no-progress", "--force", "--holdout", "none"]
+    proc = cli(*args, "--report", tmp_path / "rep", "--out", tmp_path / "p.yaml", "--safety-sweep", "quick")
+    guide = json.loads((tmp_path / "rep" / "summary.json").read_text())["guide"]
+    assert len(guide) == 1 and guide[0]["frames"] == 70 and guide[0]["candidates"] >= 6
+    assert 0 <= guide[0]["better_and_feasible"] <= guide[0]["better"] <= guide[0]["candidates"]
+    assert (f"search guide (70 branches at the log's rig, seeds the safety sweep does not use; the base reads "
+            f"{guide[0]['base_farther']} of them farther than the truth by more than 2 %): "
+            f"{guide[0]['better_and_feasible']} of the {guide[0]['better']} candidates that beat the base on their "
+            "training frames passed the safety sweep's rules on it") in proc.stdout
+    none = cli(*args, "--report", tmp_path / "rep2", "--out", tmp_path / "q.yaml", "--safety-sweep", "none")
+    assert "search guide" not in none.stdout + none.stderr
+    assert json.loads((tmp_path / "rep2" / "summary.json").read_text())["guide"] is None
+
+
 def test_the_default_safety_sweep_is_the_standard_one():
     """A plain ``tune`` checks its candidates on the 330-frame sweep; the 84-frame quick one let through a
     candidate that reads 104 leafy frames of the 1 cm near sweep farther than 2 %, the flight file 60."""
