@@ -106,7 +106,8 @@ def select(executor: Executor, fitness_name: str, base: StereoParams, base_train
 
     Set aside: fragile, i.e. P1/P2 near the cost limit (:func:`fragile_reason`), or, with ``nudge_keys``, a
     one-step nudge of one of those keys on the training frames loses the candidate's whole gain over the base
-    (``robust.nudge_check``; checked only for a candidate about to win, then the next is tried). ``screen``:
+    (over the base nudged the same way, for a key the two share: ``robust.nudge_check``; checked only for a
+    candidate about to win, then the next is tried). ``screen``:
     another check of a candidate about to win that beats the base, returning why it may not (the tuner's
     safety sweep, ``safety.SafetyScreen.reject``) or None; a rejected one is set aside the same way.
     Each candidate set aside is replaced by the next one of ``candidates`` (scored on the validation frames too),
@@ -139,6 +140,7 @@ def select(executor: Executor, fitness_name: str, base: StereoParams, base_train
 
     score(rows)
     fill()
+    base_nudges: dict[str, float] = {}      # the base nudged, by label: scored once for every candidate
     winner = 0
     while True:     # the best row not set aside yet (ranked again each time: a newcomer may rank anywhere)
         i = min((i for i in range(1, len(rows)) if rows[i]["fragile"] is None),
@@ -149,7 +151,7 @@ def select(executor: Executor, fitness_name: str, base: StereoParams, base_train
         beats = r[f"{on}_utility"] > rows[0][f"{on}_utility"]
         if nudge_keys and beats:
             check = nudge_check(executor, fitness_name, params_from_dict(r["params"]), r["train"], base_train,
-                                nudge_keys, train_set)
+                                nudge_keys, train_set, base, base_nudges)
             r["nudges"] = check.values
             r["fragile"] = check.reason
         if r["fragile"] is None and screen is not None and beats:

@@ -61,6 +61,30 @@ def test_a_candidate_on_a_cliff_loses_to_the_next_one():
     assert ("train", 5500) in ex.calls and ("validation", 5500) not in ex.calls   # nudges on the training frames
 
 
+@pytest.mark.parametrize("nudged_candidate, fragile", [(4.0, False), (6.0, True)], ids=["keeps-its-gain", "loses-it"])
+def test_a_key_the_candidate_shares_with_the_base_is_judged_against_the_base_nudged_the_same_way(nudged_candidate,
+                                                                                                 fragile):
+    """Candidate: the base's block size, P2 3000 (train 1.5 against the base's 2.0). At the next block size
+    both score worse (the base 5.0): the candidate is fragile only when it scores worse than the base nudged the
+    same way, not merely worse than the base."""
+    block = DEFAULT_PARAMS.sgbm.block_size
+
+    def fn(frameset, sg):
+        if sg["block_size"] != block:              # P1 and P2 scaled per block pixel: the candidate's stay higher
+            return nudged_candidate if sg["p2"] > 2400 * (sg["block_size"] / block) ** 2 * 1.1 else 5.0
+        return {2400: 2.0, 3000: 1.5}.get(sg["p2"], 1.8)
+    ex = Scripted(fn)
+    sel = select(ex, "flown", DEFAULT_PARAMS, 2.0, [(_with(600, 3000), 1.5)], True,
+                 nudge_keys=("sgbm.p2", "sgbm.block_size"))
+    row = sel.rows[1]
+    assert (sel.winner == 0) is fragile
+    if fragile:
+        assert row["fragile"].startswith(f"fragile: sgbm.block_size") and "the base with the same nudge's 5" in row[
+            "fragile"]
+    else:
+        assert row["fragile"] is None and row["nudges"][f"sgbm.block_size+2"] == 4.0
+
+
 def test_a_screened_candidate_is_set_aside_for_the_next_one_that_beats_the_base():
     """The tuner's safety sweep screens the held-out choice: the best held-out candidate (p2 5000) is refused by
     the screen, the runner-up (p2 3000) wins; a candidate that does not beat the base is never screened."""
