@@ -132,20 +132,21 @@ class Guide(Protocol):
 
     def read_base(self, executor: Executor, base: StereoParams, stop: threading.Event | None = None) -> None: ...
 
-    def tasks(self, params: Mapping[str, Any]) -> list[Task]: ...
-
-    def judge(self, readings: Sequence[Evaluation]) -> dict[str, float] | str: ...
+    def read(self, executor: Executor, params: Mapping[str, Any],
+             stop: threading.Event | None = None) -> dict[str, float] | str | None: ...
 
     def constraints(self, ev: Evaluation) -> dict[str, float]: ...
+
+    def feasible(self, ev: Evaluation) -> bool: ...
 
 
 class Study:
     """Runs ``config`` on ``train`` frames through ``executor``, caching in ``store``.
 
     ``guide``: the search guide (:mod:`.guide`), whose frame sets the executor holds. For an optimiser that takes
-    constraints (``OptimizerSpec.guided``: TPE) each candidate that beats the base is read on it, its guide
-    metrics are stored with its evaluation and are its constraints (feasible at 0 or less); the others search on
-    the fitness alone and the guide is not read."""
+    constraints (``OptimizerSpec.guided``: TPE) each candidate that beats the base and every candidate the guide
+    passed in the generations before is read on it, its guide metrics are stored with its evaluation and are its
+    constraints (feasible at 0 or less); the others search on the fitness alone and the guide is not read."""
 
     def __init__(self, config: StudyConfig, train: FrameSet, executor: Executor, store: RunStore,
                  base: StereoParams, progress: Callable[[int, float], None] | None = None,
@@ -153,7 +154,7 @@ class Study:
                  ranging: RangingConfig = FLOWN_RANGING, guide: Guide | None = None):
         self.config, self.train, self.executor, self.store, self.base = config, train, executor, store, base
         self.guide = guide if OPTIMIZERS[config.optimizer].guided else None
-        self._base_value: float | None = None     # the base's fitness here, once evaluated: the guide reads gains
+        self._guide_bar = math.inf    # the utility a candidate must beat to be read on the guide (Study.run sets it)
         self.ranging = ranging        # what the executor ranges with: part of every cache key
         self.frameset = frameset      # the executor's name of ``train`` (a fold's training set: "train1" ...)
         self.timeout_s = timeout_s
@@ -238,46 +239,26 @@ class Study:
             self.progress(len(idx), ev.value if ev.ok else math.nan)
 
         tasks = [Task(todo[k][0], self.frameset) for k in keys]
-        gained = []                  # (i, fitness) of the candidates with a gain: read on the guide next
+        gained = []                  # the candidates to read on the guide, after the fitness of the whole batch
         for j, ev in self.executor.imap(tasks, self.stop):   # every executor starts nothing once stop is set
             if self._read_on_guide(ev):
                 gained.append((j, ev))
             else:
                 finish(j, ev)
-        if gained:
-            self._guide_pass(gained, [todo[keys[i]][0] for i, _ in gained], finish)
+        for i, ev in sorted(gained, key=lambda g: g[0]):     # in proposal order: the same whatever the workers
+            judged = self.guide.read(self.executor, todo[keys[i]][0], self.stop)
+            if judged is None:
+                break
+            finish(i, failed(self.fitness, judged, ev.seconds) if isinstance(judged, str)
+                   else replace(ev, metrics={**ev.metrics, **judged}))
         if any(o is None for o in out):
             raise self.interrupted()
         return out  # type: ignore[return-value]
 
     def _read_on_guide(self, ev: Evaluation) -> bool:
-        """Whether a candidate is read on the guide: it beats the base on the training frames (the base itself is
-        read by the guide, once)."""
-        return (self.guide is not None and self._base_value is not None and ev.ok
-                and self.fitness.utility(ev.value) > self.fitness.utility(self._base_value))
-
-    def _guide_pass(self, gained: list[tuple[int, Evaluation]], params: list[dict[str, Any]],
-                    finish: Callable[[int, Evaluation], None]) -> None:
-        """Read ``gained`` candidates on the guide, each finished with its guide metrics as soon as it is read
-        (or failed with the reason it could not be read)."""
-        tasks, owner = [], []
-        for n, p in enumerate(params):
-            mine = self.guide.tasks(p)
-            tasks += mine
-            owner += [n] * len(mine)
-        per = len(tasks) // len(gained)
-        parts: dict[int, dict[int, Evaluation]] = {n: {} for n in range(len(gained))}
-        for j, got in self.executor.imap(tasks, self.stop):
-            n = owner[j]
-            parts[n][j] = got
-            if len(parts[n]) < per:
-                continue
-            mine = parts.pop(n)
-            i, ev = gained[n]
-            judged = self.guide.judge([mine[m] for m in sorted(mine)])
-            seconds = ev.seconds + sum(r.seconds for r in mine.values())
-            finish(i, failed(self.fitness, judged, seconds) if isinstance(judged, str)
-                   else replace(ev, metrics={**ev.metrics, **judged}, seconds=seconds))
+        """Whether a candidate is read on the guide: it beats the base and every candidate the guide passed in the
+        generations before (the base itself is read by the guide once)."""
+        return self.guide is not None and ev.ok and self.fitness.utility(ev.value) > self._guide_bar
 
     def interrupted(self) -> TuneInterrupted:
         return TuneInterrupted(f"interrupted: {self.store.count()} evaluations are kept in {self.store.path}; "
@@ -322,6 +303,8 @@ class Study:
                 opt.tell(utilities)
             else:
                 opt.tell(utilities, [self.guide.constraints(ev) for ev in evs])
+                passed = [u for ev, u in zip(evs, utilities) if self.guide.feasible(ev)]
+                self._guide_bar = max([self._guide_bar, *passed])
             self.store.put_trials(run, gen, [c[0] for c in cands], utilities)
             for (key, params, _), ev, u in zip(cands, evs, utilities):
                 res.proposals += 1
@@ -341,7 +324,8 @@ class Study:
         if self.guide is not None:
             self.guide.read_base(self.executor, self.base, self.stop)
         baseline = self.baseline()
-        self._base_value = baseline.value if baseline.ok else None
+        if baseline.ok:
+            self._guide_bar = self.fitness.utility(baseline.value)
         seeds = np.random.SeedSequence(self.config.seed).spawn(self.config.runs)
         runs = []
         for i, s in enumerate(seeds):

@@ -66,35 +66,39 @@ def _farther_on(params, guide_frames) -> int:
                for d, f in zip(branch_distances(params, fs), fs.frames))
 
 
-def test_a_guided_study_reads_each_candidate_with_a_gain_on_the_guide_as_the_safety_sweep_counts(tiny_frames,
-                                                                                                 guide_frames):
-    """The base is read once; each candidate that beats it on the training frames is read on the guide and its
-    metrics stored: frames read farther (as counted afresh), how many more than the base, and its worst scene
-    variant's median error over the sweep rule's limit. The others are not read."""
+def test_a_guided_study_reads_the_candidates_with_a_gain_on_the_guide_as_the_safety_sweep_counts(tiny_frames,
+                                                                                                  guide_frames):
+    """The base is read once. A candidate that beats the base and every candidate the guide passed before is read
+    on it and its metrics stored: a full reading gives the frames read farther (as counted afresh), how many more
+    than the base, and its worst scene variant's median error over the sweep rule's limit; a reading stopped at
+    the first frame more than the base's reads is 1 over. The others are not read."""
     study, ex = _study(tiny_frames, guide_frames, "tpe", generations=3, base=POOR_BASE)
     with ex:
         result = study.run()
     assert study.guide.base_farther == _farther_on(POOR_BASE, guide_frames)
     base = result.baseline.value
     rows = [(params, ev) for _, params, ev in study.store.evaluations() if ev.ok]
-    gained = [(p, ev) for p, ev in rows if ev.value < base]
-    assert 3 <= len(gained) < len(rows)
-    assert all(FARTHER in ev.metrics for _, ev in gained) and not any(FARTHER in ev.metrics for p, ev in rows
-                                                                       if ev.value >= base)
-    counts = {ev.metrics[FARTHER] for _, ev in gained}
-
-    for pick in (min, max):
-        params, ev = pick(gained, key=lambda r: r[1].metrics[FARTHER])
-        assert ev.metrics[FARTHER] == _farther_on(params_from_dict(params), guide_frames)
+    read = [(p, ev) for p, ev in rows if FARTHER_OVER in ev.metrics]
+    assert 3 <= len(read) < len(rows) and all(ev.value < base for _, ev in read)
+    full = [(p, ev) for p, ev in read if FARTHER in ev.metrics]
+    stopped = [(p, ev) for p, ev in read if FARTHER not in ev.metrics]
+    assert full and all(ev.metrics[FARTHER_OVER] == 1.0 and MEDIAN_OVER not in ev.metrics for _, ev in stopped)
+    for params, ev in full:
+        assert ev.metrics[FARTHER] == _farther_on(params_from_dict(params), guide_frames) <= study.guide.base_farther
         assert ev.metrics[FARTHER_OVER] == ev.metrics[FARTHER] - study.guide.base_farther
-    assert len(counts) > 1                                       # the guide tells candidates apart
-    assert all(math.isfinite(ev.metrics[MEDIAN_OVER]) for _, ev in gained)
+        assert math.isfinite(ev.metrics[MEDIAN_OVER])
+    for params, ev in stopped:
+        assert _farther_on(params_from_dict(params), guide_frames) > study.guide.base_farther
+    # a candidate with a gain that was not read is no better than one the guide passed (in a generation before)
+    best_passed = min((ev.value for _, ev in read if SearchGuide.feasible(ev)), default=base)
+    assert all(ev.value >= best_passed for _, ev in rows if ev.value < base and FARTHER_OVER not in ev.metrics)
     assert study.identity()["guide"] == SearchGuide(guide_frames).ident
 
 
 def test_the_guides_median_rule_is_the_safety_sweeps(guide_frames):
     """A candidate that reads every plain frame 5 % long and the rest as the base exceeds the limit by 5 - (1.1 x
-    the base's median + 0.25) points; one that reads as the base is 0.25 + 0.1 x its median under it."""
+    the base's median + 0.25) points; one that reads as the base is 0.25 + 0.1 x its median under it. A
+    candidate that reads more frames farther than the base is stopped: 1 over the first rule."""
     from uav_depth.tuning.metrics import branch_signed
     from uav_depth.tuning.objective import OK, Evaluation
     from uav_depth.tuning.safety import median_limit_pct
@@ -105,15 +109,26 @@ def test_the_guides_median_rule_is_the_safety_sweeps(guide_frames):
     guide._base, guide.base_farther = tuple(base), 0
     long = [t * 1.05 if k.startswith("plain") else b for k, t, b in zip(guide_frames.keys, truths, base)]
 
-    def readings(distances):
-        return [Evaluation(OK, math.nan, per_frame=tuple(distances[i] for i in idx)) for idx in guide_frames.chunks()]
+    class Reads:
+        """An executor whose candidate reads ``distances`` on the guide, chunk by chunk."""
+
+        def __init__(self, distances):
+            self.distances = distances
+
+        def imap(self, tasks, stop=None):
+            for j, idx in enumerate(guide_frames.chunks()):
+                yield j, Evaluation(OK, math.nan, per_frame=tuple(self.distances[i] for i in idx))
 
     mb = abs(branch_signed(base[0], truths[0]))
-    same, worse = guide.judge(readings(base)), guide.judge(readings(long))
+    same = guide.read(Reads(base), TINY_BASE.to_dict())
     assert same[FARTHER] == 0 and same[MEDIAN_OVER] == pytest.approx(mb - median_limit_pct(mb))
-    assert worse[FARTHER] == 6 and worse[FARTHER_OVER] == 6                   # 5 % long is farther than 2 %
+    guide.base_farther = 6                  # as if the base read the plain frames farther: read to the end
+    worse = guide.read(Reads(long), TINY_BASE.to_dict())
+    assert worse[FARTHER] == 6 and worse[FARTHER_OVER] == 0                   # 5 % long is farther than 2 %
     assert worse[MEDIAN_OVER] == pytest.approx(abs(branch_signed(long[-1], truths[-1])) - median_limit_pct(mb),
                                                abs=1e-6)
+    guide.base_farther = 0                  # the base reads none farther: stopped at the first
+    assert guide.read(Reads(long), TINY_BASE.to_dict()) == {FARTHER_OVER: 1.0}
 
 
 def test_only_an_optimiser_that_takes_constraints_reads_the_guide(tiny_frames, guide_frames):
