@@ -9,9 +9,9 @@ sweep's two rules on the guide's frames: no more frames read farther than the tr
 FARTHER_TOL_PCT) than the base, and in each scene variant a median absolute error within the sweep's limit of the
 base's. TPE models feasible and infeasible proposals apart (Optuna's trial constraints) and the choice takes the
 feasible candidates with a gain first (:func:`choice.top_candidates`). Only a candidate that beats the base on its
-training frames and every candidate the guide has passed so far is read on it (one that does not can win
-nothing the choice would take first), and a reading stops at the first frame that fails the first rule: a
-read costs about 7 x a fitness on 8 frames, and the guide must not make the search several times dearer.
+training frames and every candidate the guide passed in the generations before is read on it (one that does
+not can win nothing the choice would take first), and a reading stops as soon as the candidate fails a rule
+(:meth:`SearchGuide.read`): a whole read costs about 7 x a fitness on 8 frames.
 
 The guide leads the search, it judges nothing: its scenes are drawn from other seeds than the safety sweep's, and
 the sweep still checks every candidate about to win and the chosen one.
@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 import threading
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 from uav_depth.core.errors import UavDepthError
 from uav_depth.core.params import StereoParams
@@ -30,7 +30,7 @@ from uav_depth.core.params import StereoParams
 from uav_depth.tuning.executor import Executor
 from uav_depth.tuning.metrics import is_farther
 from uav_depth.tuning.objective import Evaluation, Task
-from uav_depth.tuning.safety import SweepFrames, errors_both_read, median_limit_pct, variant_medians
+from uav_depth.tuning.safety import SweepFrames, errors_both_read, median_limit_pct, variant_medians, variant_of
 
 #: What a candidate's evaluation holds of its guide reading (its metrics): the guide frames it read farther than
 #: the truth, how many more than the base (the first rule's constraint) and by how many points its worst scene
@@ -39,6 +39,9 @@ from uav_depth.tuning.safety import SweepFrames, errors_both_read, median_limit_
 FARTHER, FARTHER_OVER, MEDIAN_OVER = "guide_farther", "guide_farther_over", "guide_median_over"
 #: The constraints' names as Optuna records them on each trial, by metric.
 CONSTRAINTS = {FARTHER_OVER: "farther", MEDIAN_OVER: "median"}
+#: The order the scene variants are read in: plain and varied first (a candidate that ranges either worse than the
+#: base is stopped after its 14 frames), then leafy (where candidates read branches farther).
+READ_ORDER = ("plain", "varied", "leafy")
 
 
 class SearchGuide:
@@ -48,7 +51,8 @@ class SearchGuide:
 
     def __init__(self, frames: SweepFrames):
         self.frames = frames
-        self._chunks = frames.chunks()
+        self.variants = sorted({variant_of(k) for k in frames.keys}, key=lambda v: (READ_ORDER + (v,)).index(v))
+        self._chunks = frames.chunks(self.variants)
         self._base: tuple[float, ...] | None = None
         self.base_farther: int | None = None
 
@@ -59,6 +63,10 @@ class SearchGuide:
     def ident(self) -> str:
         """What names the guide in cache keys and in a resumed study: its cache entry (rig, scenes, renderer)."""
         return Path(self.frames.path).name
+
+    def framesets(self) -> dict[str, Any]:
+        """The executor's frame sets of the guide, one per chunk, a scene variant after the other."""
+        return self.frames.framesets(self.variants)
 
     def tasks(self, params: Mapping[str, Any]) -> list[Task]:
         """The tasks that read ``params`` on every guide frame, in chunk order."""
@@ -77,12 +85,17 @@ class SearchGuide:
     def _farther(self, distances: Sequence[float]) -> int:
         return sum(is_farther(None if math.isnan(d) else d, t) for d, t in zip(distances, self.frames.truths))
 
-    def read_base(self, executor: Executor, base: StereoParams, stop: threading.Event | None = None) -> None:
-        """Render the guide (or find it in the caller's cache) and read the base on it, once."""
+    def read_base(self, executor: Executor, base: StereoParams, stop: threading.Event | None = None,
+                  tick: Callable[[], None] = lambda: None) -> None:
+        """Render the guide (or find it in the caller's cache) and read the base on it, once. ``tick()``: after
+        each chunk read."""
         if self._base is not None:
             return
         self.frames.truths          # rendered here, before any worker reads a frame
-        got = dict(executor.imap(self.tasks(base.to_dict()), stop))
+        got = {}
+        for j, ev in executor.imap(self.tasks(base.to_dict()), stop):
+            got[j] = ev
+            tick()
         if len(got) < len(self._chunks):
             return                  # stopped: the study raises its own interruption next
         distances = self._distances([got[j] for j in range(len(self._chunks))])
@@ -90,46 +103,67 @@ class SearchGuide:
             raise UavDepthError(f"the base parameters cannot be read on the search guide: {distances}")
         self._base, self.base_farther = distances, self._farther(distances)
 
-    def read(self, executor: Executor, params: Mapping[str, Any],
-             stop: threading.Event | None = None) -> dict[str, float] | str | None:
-        """The guide metrics of one candidate (after :meth:`read_base`), nearest branches first; or why it could
-        not be read (the safety sweep would refuse it for the same reason); None when ``stop`` was set.
+    def read(self, executor: Executor, params: Mapping[str, Any], stop: threading.Event | None = None,
+             tick: Callable[[], None] = lambda: None) -> dict[str, float] | str | None:
+        """The guide metrics of one candidate (after :meth:`read_base`); or why it could not be read (the safety
+        sweep would refuse it for the same reason); None when ``stop`` was set. ``tick()``: after each chunk read.
 
-        A candidate is stopped as soon as it reads more frames farther than the base: it fails the first rule, and
-        how badly does not change the search's model (its constraint is then 1, the same however many chunks were
-        still being read, so that 1 or N workers give the same search)."""
+        The chunks are judged in order, a scene variant after the other (READ_ORDER), and the reading stops at the
+        first chunk after which the candidate fails a rule: more frames read farther than the base (its farther
+        constraint is then 1), or a variant read to its end with a median error above the limit (its median
+        constraint is that excess). Judged in chunk order whatever order the workers answer in, so that 1 or N
+        workers give the same search."""
         assert self._base is not None and self.base_farther is not None, "read_base first"
         halt = threading.Event()
         got: dict[int, Evaluation] = {}
-        farther = 0
+        judged: dict[str, float] | None = None
+        cursor, farther = 0, 0
+        distances = [math.nan] * len(self.frames)
         for j, ev in executor.imap(self.tasks(params), halt):
-            got[j] = ev
             if not ev.ok:
                 halt.set()
                 return f"the search guide: {ev.reason}"
-            farther += sum(is_farther(None if math.isnan(d) else d, self.frames.truths[i])
-                           for i, d in zip(self._chunks[j], ev.per_frame))
-            if farther > self.base_farther or (stop is not None and stop.is_set()):
+            got[j] = ev
+            tick()
+            while judged is None and cursor in got:
+                for i, d in zip(self._chunks[cursor], got[cursor].per_frame):
+                    distances[i] = d
+                    farther += is_farther(None if math.isnan(d) else d, self.frames.truths[i])
+                judged = self._judge_prefix(cursor, farther, distances)
+                cursor += 1
+            if judged is not None or (stop is not None and stop.is_set()):
                 halt.set()
-        if stop is not None and stop.is_set():
+        if stop is not None and stop.is_set() and judged is None and cursor < len(self._chunks):
             return None
+        return judged
+
+    def _judge_prefix(self, cursor: int, farther: int, distances: Sequence[float]) -> dict[str, float] | None:
+        """The metrics once chunks 0..cursor are read: a failed rule, or everything after the last chunk; else
+        None (read on)."""
         if farther > self.base_farther:
             return {FARTHER_OVER: 1.0}
-        distances = self._distances([got[j] for j in range(len(self._chunks))])
-        assert not isinstance(distances, str)
+        last = cursor == len(self._chunks) - 1
+        variant = variant_of(self.frames.keys[self._chunks[cursor][0]])
+        if not last and variant_of(self.frames.keys[self._chunks[cursor + 1][0]]) == variant:
+            return None
         medians = variant_medians(errors_both_read(self.frames.keys, self.frames.truths, self._base, distances))
+        if variant in medians and medians[variant][2] > median_limit_pct(medians[variant][1]):
+            _, vb, vt = medians[variant]
+            return {MEDIAN_OVER: vt - median_limit_pct(vb)}
+        if not last:
+            return None
         over = max((vt - median_limit_pct(vb) for _, vb, vt in medians.values()), default=0.0)
         return {FARTHER: farther, FARTHER_OVER: farther - self.base_farther, MEDIAN_OVER: over}
 
     @staticmethod
     def constraints(ev: Evaluation) -> dict[str, float]:
-        """The constraints of a candidate read on the guide, by Optuna's name (a rule not read, on a candidate
+        """The constraints of a candidate read on the guide, by Optuna's name (a rule not judged, on a candidate
         stopped early, counts as met: it fails the other); none for one not read."""
-        if FARTHER_OVER not in ev.metrics:
+        if not any(key in ev.metrics for key in CONSTRAINTS):
             return {}
         return {name: float(ev.metrics.get(key, 0.0)) for key, name in CONSTRAINTS.items()}
 
     @staticmethod
     def feasible(ev: Evaluation) -> bool:
-        """Read on the guide, and it passes both rules there."""
-        return ev.ok and all(key in ev.metrics and ev.metrics[key] <= 0 for key in CONSTRAINTS)
+        """Read on the whole guide, and it passes both rules there."""
+        return ev.ok and FARTHER in ev.metrics and all(ev.metrics[key] <= 0 for key in CONSTRAINTS)

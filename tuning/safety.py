@@ -68,17 +68,26 @@ class SweepFrames:
             self._truths = tuple(float(t) for t in self._render())
         return self._truths
 
-    def chunks(self) -> list[list[int]]:
+    def chunks(self, variants: Sequence[str] | None = None) -> list[list[int]]:
         """Frame indices in tasks of CHUNK, nearest branch first (where candidates go wrong: inside and just
-        outside the minimum range), so a failing candidate is stopped early."""
-        order = sorted(range(len(self)), key=lambda i: (_nominal_m(self.keys[i]), i))
-        return [order[i:i + CHUNK] for i in range(0, len(order), CHUNK)]
+        outside the minimum range), so a failing candidate is stopped early. With ``variants``, one scene variant
+        after the other in that order (nearest first within each; no chunk holds two), so that a variant's
+        frames are all read at a chunk boundary."""
+        if variants is None:
+            order = sorted(range(len(self)), key=lambda i: (_nominal_m(self.keys[i]), i))
+            return [order[i:i + CHUNK] for i in range(0, len(order), CHUNK)]
+        out = []
+        for v in variants:
+            order = sorted((i for i in range(len(self)) if variant_of(self.keys[i]) == v),
+                           key=lambda i: (_nominal_m(self.keys[i]), i))
+            out += [order[i:i + CHUNK] for i in range(0, len(order), CHUNK)]
+        return out
 
-    def framesets(self) -> dict[str, DiskFrames]:
-        """The executor's frame sets of the sweep, one per chunk (``sweep0``, ``sweep1`` ... with the default
-        prefix): paths only, read by the workers when a candidate is read."""
+    def framesets(self, variants: Sequence[str] | None = None) -> dict[str, DiskFrames]:
+        """The executor's frame sets of the sweep, one per chunk of :meth:`chunks` (``sweep0``, ``sweep1`` ...
+        with the default prefix): paths only, read by the workers when a candidate is read."""
         return {f"{self.prefix}{j}": DiskFrames(f"{self.prefix}{j}", [(self.path, self.frame_ids[i]) for i in idx])
-                for j, idx in enumerate(self.chunks())}
+                for j, idx in enumerate(self.chunks(variants))}
 
 
 def _nominal_m(key: str) -> float:
@@ -103,7 +112,7 @@ def rig_sample(train: FrameSet) -> FrameData | None:
     return next(f for f in calibrated if rig(f) == common)
 
 
-def _variant(key: str) -> str:
+def variant_of(key: str) -> str:
     """The scene variant of a sweep frame, from its key (``plain-s10-0.40m``: plain)."""
     return key.rsplit("/", 1)[-1].split("-", 1)[0]
 
@@ -234,7 +243,7 @@ def errors_both_read(keys: Sequence[str], truths: Sequence[float], base: Sequenc
     both: dict[str, list[tuple[float, float]]] = {}
     for key, b, c, t in zip(keys, base, tuned, truths):
         if math.isfinite(t) and t > 0 and math.isfinite(b) and math.isfinite(c):
-            both.setdefault(_variant(key), []).append((abs(branch_signed(b, t)), abs(branch_signed(c, t))))
+            both.setdefault(variant_of(key), []).append((abs(branch_signed(b, t)), abs(branch_signed(c, t))))
     return both
 
 

@@ -130,10 +130,11 @@ class Guide(Protocol):
 
     ident: str
 
-    def read_base(self, executor: Executor, base: StereoParams, stop: threading.Event | None = None) -> None: ...
+    def read_base(self, executor: Executor, base: StereoParams, stop: threading.Event | None = None,
+                  tick: Callable[[], None] = ...) -> None: ...
 
-    def read(self, executor: Executor, params: Mapping[str, Any],
-             stop: threading.Event | None = None) -> dict[str, float] | str | None: ...
+    def read(self, executor: Executor, params: Mapping[str, Any], stop: threading.Event | None = None,
+             tick: Callable[[], None] = ...) -> dict[str, float] | str | None: ...
 
     def constraints(self, ev: Evaluation) -> dict[str, float]: ...
 
@@ -246,7 +247,7 @@ class Study:
             else:
                 finish(j, ev)
         for i, ev in sorted(gained, key=lambda g: g[0]):     # in proposal order: the same whatever the workers
-            judged = self.guide.read(self.executor, todo[keys[i]][0], self.stop)
+            judged = self.guide.read(self.executor, todo[keys[i]][0], self.stop, lambda: self.progress(0, math.nan))
             if judged is None:
                 break
             finish(i, failed(self.fitness, judged, ev.seconds) if isinstance(judged, str)
@@ -322,7 +323,7 @@ class Study:
         if self.timeout_s is not None:
             self._deadline = time.monotonic() + self.timeout_s
         if self.guide is not None:
-            self.guide.read_base(self.executor, self.base, self.stop)
+            self.guide.read_base(self.executor, self.base, self.stop, lambda: self.progress(0, math.nan))
         baseline = self.baseline()
         if baseline.ok:
             self._guide_bar = self.fitness.utility(baseline.value)

@@ -98,7 +98,8 @@ class Hooks:
     """How a tune talks to whoever watches it; every hook is optional.
 
     ``phase(text)``: a step begins; ``begin(total)``: the searches start (total = candidates they may
-    answer, for a progress bar); ``progress(n, value)``: n more answered, the latest value;
+    answer, for a progress bar); ``progress(n, value)``: n more answered, the latest value (n = 0: still
+    working on one, the search guide reading it);
     ``searched()``: the last search ended; ``count(executor, what)``: wraps the executor for the scoring
     after the searches (a terminal counter); ``step(what, done, total)``: frames of the safety sweep read so far.
     ``stop``: set it to stop at the next result (``TuneInterrupted``).
@@ -159,7 +160,7 @@ def tune(request: TuneRequest, hooks: Hooks = Hooks()) -> Decision:
                 "test frame(s): the search trains, the choice chooses, the gate judges on the test frames alone")
     sweep, guide = _at_rig(request, split)
     framesets = {**split.framesets(), **(sweep.framesets() if sweep is not None else {}),
-                 **(guide.frames.framesets() if guide is not None else {})}
+                 **(guide.framesets() if guide is not None else {})}
     tuned_keys = [d["key"] for d in describe_space(make_space(request.config.optimizer, request.config.keys))["dims"]]
     direction = "minimize" if fitness.direction < 0 else "maximize"
     stores = [RunStore(request.store_path, direction, tuned_keys, study_name=fold_study_name(j))

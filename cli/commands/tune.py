@@ -160,7 +160,10 @@ def _hooks(args: argparse.Namespace, metric: str, terminal, stop, bars: list):
                          desc=f"tune {metric}"))
 
     def progress(n: int, value: float) -> None:
-        bars[0].update(n)
+        if n:
+            bars[0].update(n)
+        else:                       # still working on the same candidate (the search guide): redraw the clock
+            bars[0].refresh()
         if not math.isnan(value) and fitness.utility(value) > best["u"]:
             best["u"] = fitness.utility(value)
             bars[0].set_postfix_str(f"best {metric} {value:.4g}")
