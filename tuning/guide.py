@@ -1,17 +1,17 @@
-"""The search guide: sweep-like leafy branches at the log's rig (``sim.sweep.search_guide``, 70 frames, rendered
-by the caller as the safety sweep is) that the search reads every candidate on while it searches.
+"""The search guide: sweep-like branches at the log's rig (``sim.sweep.search_guide``, 70 frames, rendered by the
+caller as the safety sweep is) that TPE's candidates are read on while the search runs.
 
 Why: on a rig no shipped file was made for, the fitness alone climbs into parameter sets that read more leafy
 branches farther than the truth; the safety sweep then refuses every candidate the choice looks at and the tune
-keeps its base, although sets both better and safe exist (bench/new_rig_search.py ``safe``). The guide tells the
-search where that region is. A candidate is *feasible* when it passes the safety
-sweep's two rules on the guide's frames: no more frames read farther than the truth (by more than
-FARTHER_TOL_PCT) than the base, and in each scene variant a median absolute error within the sweep's limit of the
-base's. TPE models feasible and infeasible proposals apart (Optuna's trial constraints) and the choice takes the
-feasible candidates with a gain first (:func:`choice.top_candidates`). Only a candidate that beats the base on its
-training frames and every candidate the guide passed in the generations before is read on it (one that does
-not can win nothing the choice would take first), and a reading stops as soon as the candidate fails a rule
-(:meth:`SearchGuide.read`): a whole read costs about 7 x a fitness on 8 frames.
+keeps its base, although sets both better and safe exist (docs/measurements/tuning-search-guide.md). The guide
+tells the search where that region is. A candidate is *feasible* when it passes the safety sweep's two rules on
+the guide's frames: no more frames read farther than the truth (by more than FARTHER_TOL_PCT) than the base, and
+in each scene variant a median absolute error within the sweep's limit of the base's. TPE models feasible and
+infeasible proposals apart (Optuna's trial constraints) and the choice takes the feasible candidates with a gain
+first (:func:`choice.top_candidates`). Only a candidate that beats the base and every candidate the guide passed
+in the generations before is read (one that does not can win nothing the choice would take first), and a reading
+stops as soon as the candidate fails a rule (:meth:`SearchGuide.read`): a whole read costs about 7 x a fitness on
+8 frames.
 
 The guide leads the search, it judges nothing: its scenes are drawn from other seeds than the safety sweep's, and
 the sweep still checks every candidate about to win and the chosen one.
