@@ -85,8 +85,7 @@ def nudges(params: StereoParams, keys: Sequence[str]) -> list[tuple[str, StereoP
     """(label, params) for each valid one-step nudge of ``keys`` (those of NUDGE_STEPS / NUDGE_SCALED)."""
     out = []
     for key in keys:
-        section, name = key.split(".", 1)
-        value = getattr(getattr(params, section), name, None)
+        value = params.get(key)
         if not isinstance(value, int) or isinstance(value, bool):
             continue
         if key in NUDGE_SCALED:
@@ -142,15 +141,15 @@ def nudge_check(executor: Executor, fitness_name: str, params: StereoParams, val
     if not cands:
         return NudgeResult(None, None, math.nan, {})
     labels = {label for label, _ in cands}
-    shared = [] if base is None else [
-        (label, p) for label, p in nudges(base, [k for k in keys if _value(base, k) == _value(params, k)])
-        if label in labels]
+    shared = {} if base is None else {
+        label: p for label, p in nudges(base, [k for k in keys if base.get(k) == params.get(k)])
+        if label in labels}
     memo = {} if base_nudges is None else base_nudges
-    todo = [(label, p) for label, p in shared if label not in memo]
+    todo = [(label, p) for label, p in shared.items() if label not in memo]
     evs = run_all(executor, [Task(p.to_dict(), train_set) for _, p in cands + todo])
     values = {label: (ev.value if ev.ok else fitness.worst) for (label, _), ev in zip(cands, evs)}
     memo.update({label: (ev.value if ev.ok else fitness.worst) for (label, _), ev in zip(todo, evs[len(cands):])})
-    bars = {label: (memo[label] if label in dict(shared) else base_value) for label in values}
+    bars = {label: (memo[label] if label in shared else base_value) for label in values}
 
     def shortfall(label: str) -> float:
         return fitness.utility(bars[label]) - fitness.utility(values[label])    # > 0: the nudge lost the gain
@@ -159,15 +158,10 @@ def nudge_check(executor: Executor, fitness_name: str, params: StereoParams, val
     wv = values[worst]
     reason = None
     if not math.isfinite(wv) or shortfall(worst) > 0:
-        than = ("the base with the same nudge" if worst in dict(shared) else "the base") + f"'s {bars[worst]:.4g}"
+        than = ("the base with the same nudge" if worst in shared else "the base") + f"'s {bars[worst]:.4g}"
         reason = (f"fragile: {worst} on the training frames scores {fitness_name} {wv:.4g}, worse than {than} "
                   f"(the candidate: {value:.4g}): its gain sits on a cliff")
     return NudgeResult(reason, worst, wv, values)
-
-
-def _value(params: StereoParams, key: str) -> Any:
-    section, name = key.split(".", 1)
-    return getattr(getattr(params, section), name, None)
 
 
 @dataclass(frozen=True)
