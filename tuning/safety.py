@@ -73,12 +73,9 @@ class SweepFrames:
         outside the minimum range), so a failing candidate is stopped early. With ``variants``, one scene variant
         after the other in that order (nearest first within each; no chunk holds two), so that a variant's
         frames are all read at a chunk boundary."""
-        if variants is None:
-            order = sorted(range(len(self)), key=lambda i: (_nominal_m(self.keys[i]), i))
-            return [order[i:i + CHUNK] for i in range(0, len(order), CHUNK)]
-        out = []
-        for v in variants:
-            order = sorted((i for i in range(len(self)) if variant_of(self.keys[i]) == v),
+        out: list[list[int]] = []
+        for v in [None] if variants is None else variants:
+            order = sorted((i for i in range(len(self)) if v is None or variant_of(self.keys[i]) == v),
                            key=lambda i: (_nominal_m(self.keys[i]), i))
             out += [order[i:i + CHUNK] for i in range(0, len(order), CHUNK)]
         return out
