@@ -20,9 +20,8 @@ import os
 import signal
 import threading
 import time
-from collections import deque
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from typing import Callable, Iterator, Mapping, Protocol, Sequence
+from typing import Callable, Hashable, Iterator, Mapping, Protocol, Sequence
 
 from uav_depth.core.errors import ConfigError, DependencyError
 from uav_depth.core.ranging import RangingConfig
@@ -34,6 +33,11 @@ from uav_depth.tuning.objective import FLOWN_RANGING, Evaluation, Objective, Tas
 EVAL_THREADS = 1
 
 
+#: What :meth:`Executor.stream` asks for whenever a worker is free: the next (handle, task), or None when there is
+#: nothing to start now (asked again after the next task finishes).
+Feed = Callable[[], "tuple[Hashable, Task] | None"]
+
+
 class Executor(Protocol):
     workers: int
     kind: str
@@ -43,7 +47,22 @@ class Executor(Protocol):
         is set, start nothing new, yield what was already running, and return."""
         ...
 
+    def stream(self, feed: Feed, stop: threading.Event | None = None) -> Iterator[tuple[Hashable, Evaluation]]:
+        """Keep every worker busy with the tasks ``feed()`` hands out, no more than one a worker at a time, and
+        yield (handle, evaluation) as each finishes; return when nothing runs and ``feed()`` has nothing. What
+        to start next is decided when a worker is free, from what finished before (the search guide reads
+        several candidates at once and stops each one at its first failed rule). After ``stop`` is set, start
+        nothing new, yield what was already running, and return."""
+        ...
+
     def close(self) -> None: ...
+
+
+def imap_by_stream(executor: Executor, tasks: Sequence[Task],
+                   stop: threading.Event | None = None) -> Iterator[tuple[int, Evaluation]]:
+    """``imap`` as a :meth:`Executor.stream` of the tasks in order."""
+    todo = iter(enumerate(tasks))
+    return executor.stream(lambda: next(todo, None), stop)
 
 
 def run_all(executor: Executor, tasks: Sequence[Task]) -> list[Evaluation]:
@@ -73,10 +92,14 @@ class SerialExecutor:
         self._threads_before = _set_cv_threads(EVAL_THREADS)
 
     def imap(self, tasks, stop=None):
-        for i, task in enumerate(tasks):
-            if stop is not None and stop.is_set():
+        return imap_by_stream(self, tasks, stop)
+
+    def stream(self, feed, stop=None):
+        while not (stop is not None and stop.is_set()):
+            item = feed()
+            if item is None:
                 return
-            yield i, self.objective(task)
+            yield item[0], self.objective(item[1])
 
     def close(self) -> None:
         _set_cv_threads(self._threads_before)
@@ -130,19 +153,23 @@ class ProcessExecutor:
                                         initializer=_init_worker, initargs=(dict(framesets), fitness, ranging))
 
     def imap(self, tasks, stop=None):
-        if stop is not None and stop.is_set():
-            return
-        futures = {self.pool.submit(_run_task, t): i for i, t in enumerate(tasks)}
-        pending = set(futures)
-        while pending:
-            done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-            for f in sorted(done, key=futures.__getitem__):
-                if not f.cancelled():
-                    yield futures[f], f.result()
-            if stop is not None and stop.is_set():
-                for f in pending:
-                    f.cancel()
-                pending = {f for f in pending if not f.cancelled()}
+        return imap_by_stream(self, tasks, stop)
+
+    def stream(self, feed, stop=None):
+        # One task a worker: a task queued behind the running ones could not be taken back when the caller
+        # learns, from one that finishes, that it is not needed (ProcessPoolExecutor runs what it queued).
+        running: dict = {}
+        while True:
+            while len(running) < self.workers and not (stop is not None and stop.is_set()):
+                item = feed()
+                if item is None:
+                    break
+                running[self.pool.submit(_run_task, item[1])] = item[0]
+            if not running:
+                return
+            done, _ = wait(running, timeout=0.2, return_when=FIRST_COMPLETED)
+            for f in done:
+                yield running.pop(f), f.result()
 
     def warm(self, ready: Callable[[int, int], None] = lambda done, total: None, timeout_s: float = 120.0) -> None:
         """Start every worker now (each loads the frames once) and call ``ready(started, workers)`` as each
@@ -207,24 +234,26 @@ class RayExecutor:
         self.actors = [actor.remote(payload) for _ in range(n)]
 
     def imap(self, tasks, stop=None):
+        return imap_by_stream(self, tasks, stop)
+
+    def stream(self, feed, stop=None):
         ray = self._ray
-        queue = deque(enumerate(tasks))
         idle = list(self.actors)
         running: dict = {}
-        while queue or running:
-            while queue and idle and not (stop is not None and stop.is_set()):
-                i, task = queue.popleft()
+        while True:
+            while idle and not (stop is not None and stop.is_set()):
+                item = feed()
+                if item is None:
+                    break
                 a = idle.pop()
-                running[a.evaluate.remote(task)] = (i, a)
+                running[a.evaluate.remote(item[1])] = (item[0], a)
             if not running:
                 return
             ready, _ = ray.wait(list(running), num_returns=1, timeout=0.5)
             for ref in ready:
-                i, a = running.pop(ref)
+                handle, a = running.pop(ref)
                 idle.append(a)
-                yield i, ray.get(ref)
-            if stop is not None and stop.is_set():
-                queue.clear()
+                yield handle, ray.get(ref)
 
     def close(self) -> None:
         for a in self.actors:

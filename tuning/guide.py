@@ -103,39 +103,38 @@ class SearchGuide:
             raise UavDepthError(f"the base parameters cannot be read on the search guide: {distances}")
         self._base, self.base_farther = distances, self._farther(distances)
 
-    def read(self, executor: Executor, params: Mapping[str, Any], stop: threading.Event | None = None,
-             tick: Callable[[], None] = lambda: None) -> dict[str, float] | str | None:
-        """The guide metrics of one candidate (after :meth:`read_base`); or why it could not be read (the safety
-        sweep would refuse it for the same reason); None when ``stop`` was set. ``tick()``: after each chunk read.
+    def read_all(self, executor: Executor, candidates: Sequence[Mapping[str, Any]],
+                 stop: threading.Event | None = None,
+                 tick: Callable[[], None] = lambda: None) -> list[dict[str, float] | str | None]:
+        """The guide metrics of each candidate (after :meth:`read_base`); or why it could not be read (the
+        safety sweep would refuse it for the same reason); None for one not judged when ``stop`` was set.
+        ``tick()``: after each chunk read.
 
-        The chunks are judged in order, a scene variant after the other (READ_ORDER), and the reading stops at the
-        first chunk after which the candidate fails a rule: more frames read farther than the base (its farther
-        constraint is then 1), or a variant read to its end with a median error above the limit (its median
-        constraint is that excess). Judged in chunk order whatever order the workers answer in, so that 1 or N
-        workers give the same search."""
+        A candidate's chunks are judged in order, a scene variant after the other (READ_ORDER), and its reading
+        stops at the first chunk after which it fails a rule: more frames read farther than the base (its
+        farther constraint is then 1), or a variant read to its end with a median error above the limit (its
+        median constraint is that excess). The candidates are read at once (:meth:`Executor.stream`), each
+        free worker taking the next chunk of the candidate with the fewest chunks in flight, so that a worker
+        reads ahead of a candidate's verdict only when fewer candidates than workers are left. Each verdict
+        depends on its own chunks in order alone: 1 or N workers give the same search."""
         assert self._base is not None and self.base_farther is not None, "read_base first"
-        halt = threading.Event()
-        got: dict[int, Evaluation] = {}
-        judged: dict[str, float] | None = None
-        cursor, farther = 0, 0
-        distances = [math.nan] * len(self.frames)
-        for j, ev in executor.imap(self.tasks(params), halt):
-            if not ev.ok:
-                halt.set()
-                return f"the search guide: {ev.reason}"
-            got[j] = ev
+        reads = [_Reading(self) for _ in candidates]
+
+        def feed() -> tuple[tuple[int, int], Task] | None:
+            open_ = [c for c, r in enumerate(reads) if r.verdict is None and r.issued < len(self._chunks)]
+            if not open_:
+                return None
+            c = min(open_, key=lambda c: reads[c].in_flight)
+            j = reads[c].issued
+            reads[c].issued += 1
+            reads[c].in_flight += 1
+            return (c, j), Task(dict(candidates[c]), f"{self.frames.prefix}{j}", reading=True)
+
+        for (c, j), ev in executor.stream(feed, stop):
+            reads[c].in_flight -= 1
+            reads[c].take(j, ev)
             tick()
-            while judged is None and cursor in got:
-                for i, d in zip(self._chunks[cursor], got[cursor].per_frame):
-                    distances[i] = d
-                    farther += is_farther(None if math.isnan(d) else d, self.frames.truths[i])
-                judged = self._judge_prefix(cursor, farther, distances)
-                cursor += 1
-            if judged is not None or (stop is not None and stop.is_set()):
-                halt.set()
-        if stop is not None and stop.is_set() and judged is None and cursor < len(self._chunks):
-            return None
-        return judged
+        return [r.verdict for r in reads]
 
     def _judge_prefix(self, cursor: int, farther: int, distances: Sequence[float]) -> dict[str, float] | None:
         """The metrics once chunks 0..cursor are read: a failed rule, or everything after the last chunk; else
@@ -167,3 +166,32 @@ class SearchGuide:
     def feasible(ev: Evaluation) -> bool:
         """Read on the whole guide, and it passes both rules there."""
         return ev.ok and FARTHER in ev.metrics and all(ev.metrics[key] <= 0 for key in CONSTRAINTS)
+
+
+class _Reading:
+    """One candidate's reading on the guide while :meth:`SearchGuide.read_all` runs: its chunks as they come,
+    judged in order, and its verdict once it has one (metrics, or why it could not be read)."""
+
+    def __init__(self, guide: SearchGuide):
+        self.guide = guide
+        self.issued = self.in_flight = 0
+        self.verdict: dict[str, float] | str | None = None
+        self._got: dict[int, Evaluation] = {}
+        self._cursor = self._farther = 0
+        self._distances = [math.nan] * len(guide.frames)
+
+    def take(self, j: int, ev: Evaluation) -> None:
+        """Chunk ``j``'s evaluation: judged with every chunk before it once they are all here."""
+        if self.verdict is not None:
+            return                  # read ahead of a verdict: not needed
+        if not ev.ok:
+            self.verdict = f"the search guide: {ev.reason}"
+            return
+        g = self.guide
+        self._got[j] = ev
+        while self.verdict is None and self._cursor in self._got:
+            for i, d in zip(g._chunks[self._cursor], self._got.pop(self._cursor).per_frame):
+                self._distances[i] = d
+                self._farther += is_farther(None if math.isnan(d) else d, g.frames.truths[i])
+            self.verdict = g._judge_prefix(self._cursor, self._farther, self._distances)
+            self._cursor += 1

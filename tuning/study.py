@@ -133,8 +133,9 @@ class Guide(Protocol):
     def read_base(self, executor: Executor, base: StereoParams, stop: threading.Event | None = None,
                   tick: Callable[[], None] = ...) -> None: ...
 
-    def read(self, executor: Executor, params: Mapping[str, Any], stop: threading.Event | None = None,
-             tick: Callable[[], None] = ...) -> dict[str, float] | str | None: ...
+    def read_all(self, executor: Executor, candidates: Sequence[Mapping[str, Any]],
+                 stop: threading.Event | None = None,
+                 tick: Callable[[], None] = ...) -> list[dict[str, float] | str | None]: ...
 
     def constraints(self, ev: Evaluation) -> dict[str, float]: ...
 
@@ -246,8 +247,10 @@ class Study:
                 gained.append((j, ev))
             else:
                 finish(j, ev)
-        for i, ev in sorted(gained, key=lambda g: g[0]):     # in proposal order: the same whatever the workers
-            judged = self.guide.read(self.executor, todo[keys[i]][0], self.stop, lambda: self.progress(0, math.nan))
+        gained.sort(key=lambda g: g[0])                      # in proposal order: the same whatever the workers
+        verdicts = self.guide.read_all(self.executor, [todo[keys[i]][0] for i, _ in gained], self.stop,
+                                       lambda: self.progress(0, math.nan)) if gained else []
+        for (i, ev), judged in zip(gained, verdicts):
             if judged is None:
                 break
             finish(i, failed(self.fitness, judged, ev.seconds) if isinstance(judged, str)

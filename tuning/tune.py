@@ -22,7 +22,7 @@ from uav_depth.core.params import StereoParams, params_from_dict
 from uav_depth.core.ranging import RangingConfig
 
 from uav_depth.tuning.choice import SELECT_POOL, Selection, full_scores, select, top_candidates
-from uav_depth.tuning.executor import Executor, make_executor
+from uav_depth.tuning.executor import Executor, Feed, make_executor
 from uav_depth.tuning.frames import FrameData, FrameSet
 from uav_depth.tuning.front import choose_under_budget, search_front, time_params
 from uav_depth.tuning.gate import Decision, Verdict, refusal
@@ -126,11 +126,22 @@ class Sealed:
 
     def imap(self, tasks: Sequence[Task], stop: threading.Event | None = None) -> Iterator:
         tasks = list(tasks)
+        self._check(tasks)
+        return self._executor.imap(tasks, stop)
+
+    def stream(self, feed: Feed, stop: threading.Event | None = None) -> Iterator:
+        def checked():
+            item = feed()
+            if item is not None:
+                self._check([item[1]])
+            return item
+        return self._executor.stream(checked, stop)
+
+    def _check(self, tasks: Sequence[Task]) -> None:
         leaked = sorted({t.frameset for t in tasks if t.frameset in self.sealed})
         if leaked:
             raise LeakError(f"the choice asked to score candidates on the {', '.join(leaked)} frames, which only "
                             "the gate may see: its figures would not be held out")
-        return self._executor.imap(tasks, stop)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._executor, name)

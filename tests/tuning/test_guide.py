@@ -116,21 +116,70 @@ def test_the_guides_median_rule_is_the_safety_sweeps(guide_frames):
         def __init__(self, distances):
             self.distances = distances
 
-        def imap(self, tasks, stop=None):
-            for j, idx in enumerate(guide._chunks):
-                yield j, Evaluation(OK, math.nan, per_frame=tuple(self.distances[i] for i in idx))
+        def stream(self, feed, stop=None):
+            while (item := feed()) is not None:
+                j = int(item[1].frameset.removeprefix(guide.frames.prefix))
+                yield item[0], Evaluation(OK, math.nan, per_frame=tuple(self.distances[i] for i in guide._chunks[j]))
 
     mb = abs(branch_signed(base[0], truths[0]))
-    same = guide.read(Reads(base), TINY_BASE.to_dict())
+    [same] = guide.read_all(Reads(base), [TINY_BASE.to_dict()])
     assert same[FARTHER] == 0 and same[MEDIAN_OVER] == pytest.approx(mb - median_limit_pct(mb))
     guide.base_farther = 6        # as if the base read the 6 plain frames farther: the first rule holds ...
-    worse = guide.read(Reads(long), TINY_BASE.to_dict())
+    [worse] = guide.read_all(Reads(long), [TINY_BASE.to_dict()])
     excess = float(np.median([abs(branch_signed(d, t)) for k, d, t in zip(guide_frames.keys, long, truths)
                               if k.startswith("plain")])) - median_limit_pct(mb)
     assert excess > 3 and worse == {MEDIAN_OVER: pytest.approx(excess)}      # ... the plain frames, read first, fail
     guide.base_farther = 0        # the base reads none farther: stopped at the first chunk (4 plain frames 5 % long)
-    assert guide.read(Reads(long), TINY_BASE.to_dict()) == {FARTHER_OVER: 1.0}
+    assert guide.read_all(Reads(long), [TINY_BASE.to_dict()]) == [{FARTHER_OVER: 1.0}]
     assert guide.variants == ["plain", "leafy"]
+
+
+def test_candidates_read_at_once_get_the_verdict_each_gets_alone_on_one_or_two_workers(tiny_frames,
+                                                                                       guide_frames):
+    """read_all reads several candidates at once, each worker taking the next chunk of the candidate with the
+    fewest in flight; each verdict is judged on its own chunks in order, so it is the one the candidate gets read
+    alone on one worker, and a candidate stopped early has nothing read past its stop but what was in flight."""
+    from uav_depth.tuning.executor import make_executor
+
+    candidates = [TINY_BASE.replace(**kv).to_dict() for kv in (
+        {"sgbm.block_size": 7}, {"sgbm.num_disparities": 16}, {"sgbm.block_size": 15}, {"sgbm.p2": 2000},
+        {"wls.enabled": False}, {"sgbm.block_size": 3})]
+    guide = SearchGuide(guide_frames)
+    framesets = {"train": tiny_frames, **guide.framesets()}
+    with make_executor(framesets, "flown", 1) as ex:
+        guide.read_base(ex, TINY_BASE)
+        alone = [guide.read_all(ex, [c])[0] for c in candidates]
+    for workers in (1, 2):
+        with make_executor(framesets, "flown", workers) as ex:
+            counted = Counting(ex)
+            assert guide.read_all(counted, candidates) == alone
+        stopped = [i for i, v in enumerate(alone) if FARTHER not in v]
+        assert stopped and len(counted.read) < len(candidates) * len(guide._chunks)
+        assert max(counted.ahead) <= max(1, workers - 1)
+    assert [FARTHER in v for v in alone] == [False, True, False, True, False, True]     # three stopped early
+
+
+class Counting:
+    """An executor's stream that counts the chunks read per candidate and, for each one started, how many chunks
+    of its candidate were already in flight."""
+
+    def __init__(self, executor):
+        self.executor, self.read, self.ahead = executor, [], []
+
+    def stream(self, feed, stop=None):
+        in_flight: dict[int, int] = {}
+
+        def counted():
+            item = feed()
+            if item is not None:
+                c = item[0][0]
+                self.ahead.append(in_flight.get(c, 0))
+                in_flight[c] = in_flight.get(c, 0) + 1
+                self.read.append(item[0])
+            return item
+        for handle, ev in self.executor.stream(counted, stop):
+            in_flight[handle[0]] -= 1
+            yield handle, ev
 
 
 def test_only_an_optimiser_that_takes_constraints_reads_the_guide(tiny_frames, guide_frames):

@@ -196,6 +196,38 @@ def test_process_pool_loads_frames_once_and_keeps_task_order(tiny_frames):
     assert len({e.value for e in serial}) == 5
 
 
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_stream_keeps_one_task_a_worker_and_asks_what_next_when_one_finishes(tiny_frames, workers):
+    """stream starts a task only on a free worker (nothing queued that a caller could no longer take back), asks
+    the feed again after each one finishes, and ends when nothing runs and the feed has nothing; after stop, it
+    starts nothing more."""
+    import threading
+
+    params = [TINY_BASE.replace(**{"sgbm.p1": p1}).to_dict() for p1 in (100, 300, 600, 900, 1200, 1500)]
+    todo, in_flight, most = list(enumerate(params)), [0], [0]
+
+    def feed():
+        if not todo:
+            return None
+        in_flight[0] += 1
+        most[0] = max(most[0], in_flight[0])
+        i, p = todo.pop(0)
+        return ("p1", i), Task(p)
+
+    got = []
+    with make_executor({"train": tiny_frames}, "mse", workers) as ex:
+        for handle, ev in ex.stream(feed):
+            in_flight[0] -= 1
+            got.append((handle, ev.value))
+        assert most[0] == workers and sorted(h for h, _ in got) == [("p1", i) for i in range(6)]
+        stop, seen = threading.Event(), []
+        todo[:] = list(enumerate(params))
+        for handle, ev in ex.stream(feed, stop):
+            seen.append(handle)
+            stop.set()
+        assert len(seen) == workers and len(todo) == 6 - workers   # what was running is yielded, nothing more
+
+
 def test_pareto_front():
     pts = [(1.0, 10.0, "a"), (2.0, 20.0, "b"), (0.5, 30.0, "c"), (3.0, 40.0, "d"), (2.5, 5.0, "e")]
     assert [p[2] for p in pareto_front(pts)] == ["e", "d"]
