@@ -92,6 +92,13 @@ SPEED_KEYS: tuple[str, ...] = tuple(k for k in ("compute.scale", "compute.grey")
 WINNABLE_COST_MAX = OPENCV_COST_MAX // 2
 #: The tuner's caps on top of what the schema accepts (core.params.accepted_range's ``limits``).
 SEARCH_LIMITS: dict[str, float] = {"sgbm.p1": WINNABLE_COST_MAX, "sgbm.p2": WINNABLE_COST_MAX}
+#: The tuner's floors above what the schema accepts. Block size 1 (a one-pixel match, no block) is where the
+#: flown fitness climbs and nothing can be chosen: in bench/new_rig.py's tunes on its three rigs
+#: (docs/measurements/tuning-search-guide.md) the search guide passed 5 of the 742 block-1 candidates it read
+#: (0.7 %) and 234 of the 569 at block 3 (41 %); every file tune wrote there has block 3; on the real pairs at
+#: the default 30 x 100 every block-1 candidate failed the block-size nudge (robust.nudge_check). Searched,
+#: block 1 took half of what the search read on the guide. A file may still hold it (the schema's floor).
+SEARCH_FLOORS: dict[str, float] = {"sgbm.block_size": 3}
 
 
 def search_range(key: str, values: Mapping[str, Any]) -> tuple[float, float]:
@@ -209,8 +216,8 @@ class Dim:
 
 def dim_for(key: str, scale: str | None = None) -> Dim:
     """The search dimension of one schema key: its range from :func:`search_range` (the schema's bounds,
-    OpenCV's limits, the tuner's cap on P1/P2), and preFilterCap from OpenCV's floor (below it every value
-    gives the same map)."""
+    OpenCV's limits, the tuner's cap on P1/P2), the tuner's :data:`SEARCH_FLOORS`, and preFilterCap from
+    OpenCV's floor (below it every value gives the same map)."""
     if key not in SPEC_BY_KEY:
         raise ConfigError("--keys", f"must name parameter-file keys (known: {', '.join(SPEC_BY_KEY)})", key)
     spec = SPEC_BY_KEY[key]
@@ -222,6 +229,7 @@ def dim_for(key: str, scale: str | None = None) -> Dim:
     if spec.kind not in (int, float) or spec.lo is None or spec.hi is None:
         raise ConfigError("--keys", "must name a numeric, choice or boolean key to tune", key)
     lo, hi = search_range(key, {})
+    lo = max(lo, SEARCH_FLOORS.get(key, lo))
     if key == "sgbm.pre_filter_cap":
         lo = max(lo, OPENCV_PRE_FILTER_CAP_FLOOR)
     if spec.kind is float and spec.rule == "positive" and lo <= 0:

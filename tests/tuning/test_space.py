@@ -116,6 +116,17 @@ def test_schema_space_bounds_come_from_the_schema_and_opencv_limits():
     assert dim_for("sgbm.pre_filter_cap").lo == OPENCV_PRE_FILTER_CAP_FLOOR
 
 
+def test_the_improved_space_searches_blocks_from_3_and_a_base_at_block_1_still_loads():
+    """Block 1 is a file the daemon flies but not one the search proposes (space.SEARCH_FLOORS: where the
+    fitness climbs and the safety sweep and the nudge check refuse); the paper's space keeps its own ranges."""
+    space, rng = SchemaSpace(), np.random.default_rng(5)
+    blocks = {build(space, space.sample(rng), DEFAULT_PARAMS).sgbm.block_size for _ in range(300)}
+    assert min(blocks) == 3 and 1 not in blocks and dim_for("sgbm.block_size").lo == 3
+    assert build(space, np.zeros(space.size), DEFAULT_PARAMS).sgbm.block_size == 3
+    one = FLIGHT_LIKE.replace(**{"sgbm.block_size": 1})
+    assert build(space, space.encode(one), one).sgbm.block_size == 3     # the base itself is evaluated apart
+
+
 def test_schema_space_candidates_always_validate_and_keep_the_declared_rules():
     keys = parse_keys("default,sgbm.mode,sgbm.num_disparities,wls.enabled")
     space, rng = SchemaSpace(keys), np.random.default_rng(3)

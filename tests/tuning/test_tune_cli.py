@@ -259,7 +259,7 @@ def test_the_safety_sweep_runs_at_the_logs_rig_and_is_reported(tiny_session, tmp
     counts are printed and in summary.json. --safety-sweep none skips it. (``--holdout none``: chosen on the
     training frames, where this seed's GA finds candidates that beat the base, so one is about to win.)"""
     args = ["tune", tiny_session / "s", "--base", tiny_session / "base.yaml", "--optimizer", "ga",
-            "--population", "6", "--generations", "2", "--seed", "2", "--workers", "1", "--no-progress", "--force",
+            "--population", "6", "--generations", "2", "--seed", "5", "--workers", "1", "--no-progress", "--force",
             "--holdout", "none"]
     proc = cli(*args, "--report", tmp_path / "rep", "--out", tmp_path / "p.yaml", "--safety-sweep", "quick")
     sweep = json.loads((tmp_path / "rep" / "summary.json").read_text())["gate"]["safety_sweep"]
