@@ -70,7 +70,7 @@ class SearchGuide:
 
     def tasks(self, params: Mapping[str, Any]) -> list[Task]:
         """The tasks that read ``params`` on every guide frame, in chunk order."""
-        return [Task(dict(params), f"{self.frames.prefix}{j}", reading=True) for j in range(len(self._chunks))]
+        return [self.frames.task(params, j) for j in range(len(self._chunks))]
 
     def _distances(self, readings: Sequence[Evaluation]) -> tuple[float, ...] | str:
         """Per guide frame, the distance read (m, NaN: none), from :meth:`tasks`' evaluations; or why not."""
@@ -128,7 +128,7 @@ class SearchGuide:
             j = reads[c].issued
             reads[c].issued += 1
             reads[c].in_flight += 1
-            return (c, j), Task(dict(candidates[c]), f"{self.frames.prefix}{j}", reading=True)
+            return (c, j), self.frames.task(candidates[c], j)
 
         for (c, j), ev in executor.stream(feed, stop):
             reads[c].in_flight -= 1

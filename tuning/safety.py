@@ -16,7 +16,7 @@ import statistics
 import threading
 from collections import Counter
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 from uav_depth.core.errors import UavDepthError
 from uav_depth.core.params import StereoParams, params_from_dict
@@ -83,8 +83,15 @@ class SweepFrames:
     def framesets(self, variants: Sequence[str] | None = None) -> dict[str, DiskFrames]:
         """The executor's frame sets of the sweep, one per chunk of :meth:`chunks` (``sweep0``, ``sweep1`` ...
         with the default prefix): paths only, read by the workers when a candidate is read."""
-        return {f"{self.prefix}{j}": DiskFrames(f"{self.prefix}{j}", [(self.path, self.frame_ids[i]) for i in idx])
+        return {self._name(j): DiskFrames(self._name(j), [(self.path, self.frame_ids[i]) for i in idx])
                 for j, idx in enumerate(self.chunks(variants))}
+
+    def task(self, params: Mapping[str, Any], chunk: int) -> Task:
+        """The task that reads ``params`` as the daemon flies on chunk ``chunk`` of :meth:`framesets`."""
+        return Task(dict(params), self._name(chunk), reading=True)
+
+    def _name(self, chunk: int) -> str:
+        return f"{self.prefix}{chunk}"
 
 
 def _nominal_m(key: str) -> float:
@@ -173,7 +180,7 @@ class SafetyScreen:
         sweep, n = self.sweep, len(self.sweep)
         truths = sweep.truths       # rendered here when no candidate needed the sweep before
         out = [math.nan] * n
-        tasks = [Task(params.to_dict(), f"{sweep.prefix}{j}", reading=True) for j in range(len(self._chunks))]
+        tasks = [sweep.task(params.to_dict(), j) for j in range(len(self._chunks))]
         halt = threading.Event()
         read = farther = 0
         for j, ev in self.executor.imap(tasks, halt):
