@@ -39,9 +39,6 @@ from uav_depth.tuning.safety import SweepFrames, errors_both_read, median_limit_
 FARTHER, FARTHER_OVER, MEDIAN_OVER = "guide_farther", "guide_farther_over", "guide_median_over"
 #: The constraints' names as Optuna records them on each trial, by metric.
 CONSTRAINTS = {FARTHER_OVER: "farther", MEDIAN_OVER: "median"}
-#: The order the scene variants are read in: plain and varied first (a candidate that ranges either worse than the
-#: base is stopped after its 14 frames), then leafy (where candidates read branches farther).
-READ_ORDER = ("plain", "varied", "leafy")
 
 
 class SearchGuide:
@@ -51,8 +48,8 @@ class SearchGuide:
 
     def __init__(self, frames: SweepFrames):
         self.frames = frames
-        self.variants = sorted({variant_of(k) for k in frames.keys}, key=lambda v: (READ_ORDER + (v,)).index(v))
-        self._chunks = frames.chunks(self.variants)
+        self.variants = frames.variants
+        self._chunks = frames.chunks()
         self._base: tuple[float, ...] | None = None
         self.base_farther: int | None = None
 
@@ -66,7 +63,7 @@ class SearchGuide:
 
     def framesets(self) -> dict[str, Any]:
         """The executor's frame sets of the guide, one per chunk, a scene variant after the other."""
-        return self.frames.framesets(self.variants)
+        return self.frames.framesets()
 
     def tasks(self, params: Mapping[str, Any]) -> list[Task]:
         """The tasks that read ``params`` on every guide frame, in chunk order."""
@@ -110,7 +107,7 @@ class SearchGuide:
         safety sweep would refuse it for the same reason); None for one not judged when ``stop`` was set.
         ``tick()``: after each chunk read.
 
-        A candidate's chunks are judged in order, a scene variant after the other (READ_ORDER), and its reading
+        A candidate's chunks are judged in order, a scene variant after the other (safety.READ_ORDER), and its reading
         stops at the first chunk after which it fails a rule: more frames read farther than the base (its
         farther constraint is then 1), or a variant read to its end with a median error above the limit (its
         median constraint is that excess). The candidates are read at once (:meth:`Executor.stream`), each

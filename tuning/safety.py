@@ -39,6 +39,10 @@ SWEEP_MEDIAN_FACTOR = 1.1
 SWEEP_MEDIAN_SLACK_PCT = 0.25
 #: How a candidate the safety sweep set aside is marked in the choice's rows (and so in the report).
 UNSAFE = "unsafe: "
+#: The order the scene variants are read in, each whole before the next: plain and varied first (a candidate that
+#: ranges either less accurately than the base allows is stopped there, a third of the way in), then leafy (where
+#: candidates read branches farther).
+READ_ORDER = ("plain", "varied", "leafy")
 #: Sweep frames per task: small enough that each worker reports every second or so at 1280x720 and that a
 #: candidate stopped early has read little more than it had to, large enough that a task's start costs little.
 CHUNK = 4
@@ -68,23 +72,29 @@ class SweepFrames:
             self._truths = tuple(float(t) for t in self._render())
         return self._truths
 
-    def chunks(self, variants: Sequence[str] | None = None) -> list[list[int]]:
-        """Frame indices in tasks of CHUNK, nearest branch first (where candidates go wrong: inside and just
-        outside the minimum range), so a failing candidate is stopped early. With ``variants``, one scene variant
-        after the other in that order (nearest first within each; no chunk holds two), so that a variant's
-        frames are all read at a chunk boundary."""
+    @property
+    def variants(self) -> list[str]:
+        """The scene variants of the sweep's frames, in the order they are read (READ_ORDER, then any other)."""
+        return sorted({variant_of(k) for k in self.keys}, key=lambda v: (READ_ORDER.index(v)
+                                                                        if v in READ_ORDER else len(READ_ORDER), v))
+
+    def chunks(self) -> list[list[int]]:
+        """Frame indices in tasks of CHUNK: one scene variant after the other (:attr:`variants`; no chunk holds
+        two, so a variant's frames are all read at a chunk boundary and its median can be judged there), nearest
+        branch first within each (where candidates go wrong: inside and just outside the minimum range), so that
+        a failing candidate is stopped early."""
         out: list[list[int]] = []
-        for v in [None] if variants is None else variants:
-            order = sorted((i for i in range(len(self)) if v is None or variant_of(self.keys[i]) == v),
+        for v in self.variants:
+            order = sorted((i for i in range(len(self)) if variant_of(self.keys[i]) == v),
                            key=lambda i: (_nominal_m(self.keys[i]), i))
             out += [order[i:i + CHUNK] for i in range(0, len(order), CHUNK)]
         return out
 
-    def framesets(self, variants: Sequence[str] | None = None) -> dict[str, DiskFrames]:
+    def framesets(self) -> dict[str, DiskFrames]:
         """The executor's frame sets of the sweep, one per chunk of :meth:`chunks` (``sweep0``, ``sweep1`` ...
         with the default prefix): paths only, read by the workers when a candidate is read."""
         return {self._name(j): DiskFrames(self._name(j), [(self.path, self.frame_ids[i]) for i in idx])
-                for j, idx in enumerate(self.chunks(variants))}
+                for j, idx in enumerate(self.chunks())}
 
     def task(self, params: Mapping[str, Any], chunk: int) -> Task:
         """The task that reads ``params`` as the daemon flies on chunk ``chunk`` of :meth:`framesets`."""
@@ -124,10 +134,12 @@ def variant_of(key: str) -> str:
 @dataclass(frozen=True)
 class Reading:
     """What one parameter set read on the sweep: distances in m per frame (NaN: no distance, or not read),
-    how many frames were read (all of them unless stopped early), the reason when it could not be read."""
+    how many frames were read (all of them unless stopped early), the scene variants read whole, the reason when
+    it could not be read."""
 
     distances: tuple[float, ...]
     read: int
+    whole: tuple[str, ...] = ()
     failed: str | None = None
 
 
@@ -155,9 +167,10 @@ class SafetyScreen:
     def active(self) -> bool:
         return self.sweep is not None and self.executor is not None
 
-    def reading(self, params: StereoParams, limit: int | None = None) -> Reading:
+    def reading(self, params: StereoParams, limit: int | None = None, base: Reading | None = None) -> Reading:
         """``params`` read on the sweep, once; with ``limit``, stopped as soon as more than ``limit`` frames read
-        farther than the truth (the verdict is then known: it fails)."""
+        farther than the truth, and with ``base`` (its reading) as soon as a scene variant read whole fails the
+        accuracy rule against it (either way the verdict is then known: it fails)."""
         known = self._readings.get(params)
         if known is not None and (known.read == len(self.sweep) or known.failed or limit is not None):
             return known
@@ -165,7 +178,7 @@ class SafetyScreen:
             self.phase(f"the safety sweep: the base and each candidate about to win, as the daemon flies them, on "
                        f"{len(self.sweep)} synthetic branches from inside the minimum range out to 3 m")
         label = "the base" if params == self.base else f"candidate {self._next_label()}"
-        reading = self._read(params, label, limit)
+        reading = self._read(params, label, limit, base)
         self._readings[params] = reading
         if self.stop is not None and self.stop.is_set():
             raise TuneInterrupted("interrupted in the safety sweep; run the same command with --resume to "
@@ -176,25 +189,34 @@ class SafetyScreen:
         self._labels += 1
         return self._labels
 
-    def _read(self, params: StereoParams, label: str, limit: int | None) -> Reading:
+    def _read(self, params: StereoParams, label: str, limit: int | None, base: Reading | None) -> Reading:
         sweep, n = self.sweep, len(self.sweep)
         truths = sweep.truths       # rendered here when no candidate needed the sweep before
         out = [math.nan] * n
         tasks = [sweep.task(params.to_dict(), j) for j in range(len(self._chunks))]
+        left = Counter(variant_of(sweep.keys[idx[0]]) for idx in self._chunks)   # chunks of each variant to read
         halt = threading.Event()
         read = farther = 0
+        whole: list[str] = []
         for j, ev in self.executor.imap(tasks, halt):
             if not ev.ok:
                 halt.set()
-                return Reading(tuple(out), read, ev.reason)
+                return Reading(tuple(out), read, tuple(whole), ev.reason)
             for i, d in zip(self._chunks[j], ev.per_frame):
                 out[i] = d
                 farther += is_farther(None if math.isnan(d) else d, truths[i])
             read += len(self._chunks[j])
+            variant = variant_of(sweep.keys[self._chunks[j][0]])
+            left[variant] -= 1
+            if not left[variant]:
+                whole.append(variant)
             self.progress(f"safety sweep: {label}, frames read", read, n)
-            if (limit is not None and farther > limit) or (self.stop is not None and self.stop.is_set()):
+            less_accurate = base is not None and not left[variant] and _median_fails(
+                variant_medians(errors_both_read(sweep.keys, truths, base.distances, out)).get(variant))
+            if ((limit is not None and farther > limit) or less_accurate
+                    or (self.stop is not None and self.stop.is_set())):
                 halt.set()
-        return Reading(tuple(out), read)
+        return Reading(tuple(out), read, tuple(whole))
 
     def _verdict(self, params: StereoParams, rejecting: bool) -> FartherCheck:
         sweep = self.sweep
@@ -202,7 +224,7 @@ class SafetyScreen:
         if base.failed:
             raise UavDepthError(f"the base parameters cannot be read on the safety sweep: {base.failed}")
         nb = _farther(base, sweep)
-        tuned = self.reading(params, limit=nb if rejecting else None)
+        tuned = self.reading(params, *((nb, base) if rejecting else ()))
         who = "reads" if rejecting else "the tuned parameters read"
         if tuned.failed:
             return FartherCheck(nb, 0, len(sweep), f"{who} no distance on the safety sweep: {tuned.failed}")
@@ -215,9 +237,8 @@ class SafetyScreen:
         both = errors_both_read(sweep.keys, sweep.truths, base.distances, tuned.distances)
         pooled = [e for es in both.values() for e in es]
         mb, mt = ((statistics.median(e[i] for e in pooled) if pooled else None) for i in (0, 1))
-        if tuned.read == len(sweep):
-            for variant, (n, vb, vt) in variant_medians(both).items():
-                if vt > median_limit_pct(vb):
+        for variant, (n, vb, vt) in variant_medians(both).items():
+            if variant in tuned.whole and _median_fails((n, vb, vt)):
                     reasons.append(f"{who} the {n} {variant} safety-sweep frame(s) both read with a median "
                                    f"absolute error of {vt:.2f} %, above {SWEEP_MEDIAN_FACTOR:g} x the base's "
                                    f"{vb:.2f} % + {SWEEP_MEDIAN_SLACK_PCT:g}")
@@ -234,6 +255,11 @@ class SafetyScreen:
         if not self.active or chosen == self.base:
             return None
         return self._verdict(chosen, rejecting=False)
+
+
+def _median_fails(medians: tuple[int, float, float] | None) -> bool:
+    """Whether a scene variant's (frames both read, base's median, candidate's median) fails the accuracy rule."""
+    return medians is not None and medians[2] > median_limit_pct(medians[1])
 
 
 def _farther(reading: Reading, sweep: SweepFrames) -> int:

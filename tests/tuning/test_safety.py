@@ -160,3 +160,21 @@ def test_a_candidate_already_reading_more_frames_farther_than_the_base_is_stoppe
     assert ex.tasks == 40 // CHUNK + 1                                   # the base whole, the candidate one task
     # the gate asks again: it reads the rest, then gives the whole count
     assert screen.check(T96).tuned == 40
+
+
+def test_a_candidate_whose_plain_median_fails_is_stopped_once_the_plain_frames_are_read():
+    """The sweep is read a scene variant after the other, plain first: a candidate about to win whose plain
+    branches read less accurately than the rule allows is stopped when the last plain frame is in (the verdict
+    is known), the leafy frames not paid for; the gate's check reads it whole and gives the same reason."""
+    sweep = _scripted_sweep(n_plain=8, n_leafy=20)
+    assert [sweep.keys[idx[0]].split("-")[0] for idx in sweep.chunks()] == ["plain"] * 2 + ["leafy"] * 5
+    ex = Scripted(sweep, lambda p: {"plain": -0.01, "leafy": -0.01} if p == FLIGHT.to_dict()
+                  else {"plain": -0.03, "leafy": 0.0})                   # nearer: never farther, plain 3 % off
+    screen = SafetyScreen(sweep, FLIGHT, ex)
+    why = screen.reject(T96.to_dict())
+    plain = ("reads the 8 plain safety-sweep frame(s) both read with a median absolute error of 3.00 %, above "
+             "1.1 x the base's 1.00 % + 0.25")
+    assert why == "unsafe: " + plain
+    assert ex.tasks == 7 + 2                                             # the base whole, the candidate's plain
+    assert screen.check(T96).reason == "the tuned parameters read" + plain.removeprefix("reads")
+    assert ex.tasks == 7 + 2 + 7
