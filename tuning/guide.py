@@ -30,7 +30,8 @@ from uav_depth.core.params import StereoParams
 from uav_depth.tuning.executor import Executor
 from uav_depth.tuning.metrics import is_farther
 from uav_depth.tuning.objective import Evaluation, Task
-from uav_depth.tuning.safety import SweepFrames, errors_both_read, median_limit_pct, variant_medians, variant_of
+from uav_depth.tuning.safety import (SweepFrames, errors_both_read, median_fails, median_limit_pct, variant_medians,
+                                     variant_of)
 
 #: What a candidate's evaluation holds of its guide reading (its metrics): the guide frames it read farther than
 #: the truth, how many more than the base (the first rule's constraint) and by how many points its worst scene
@@ -107,8 +108,8 @@ class SearchGuide:
         safety sweep would refuse it for the same reason); None for one not judged when ``stop`` was set.
         ``tick()``: after each chunk read.
 
-        A candidate's chunks are judged in order, a scene variant after the other (safety.READ_ORDER), and its reading
-        stops at the first chunk after which it fails a rule: more frames read farther than the base (its
+        A candidate's chunks are judged in order, a scene variant after the other (safety.READ_ORDER), and its
+        reading stops at the first chunk after which it fails a rule: more frames read farther than the base (its
         farther constraint is then 1), or a variant read to its end with a median error above the limit (its
         median constraint is that excess). The candidates are read at once (:meth:`Executor.stream`), each
         free worker taking the next chunk of the candidate with the fewest chunks in flight, so that a worker
@@ -143,7 +144,7 @@ class SearchGuide:
         if not last and variant_of(self.frames.keys[self._chunks[cursor + 1][0]]) == variant:
             return None
         medians = variant_medians(errors_both_read(self.frames.keys, self.frames.truths, self._base, distances))
-        if variant in medians and medians[variant][2] > median_limit_pct(medians[variant][1]):
+        if median_fails(medians.get(variant)):
             _, vb, vt = medians[variant]
             return {MEDIAN_OVER: vt - median_limit_pct(vb)}
         if not last:

@@ -211,7 +211,7 @@ class SafetyScreen:
             if not left[variant]:
                 whole.append(variant)
             self.progress(f"safety sweep: {label}, frames read", read, n)
-            less_accurate = base is not None and not left[variant] and _median_fails(
+            less_accurate = base is not None and not left[variant] and median_fails(
                 variant_medians(errors_both_read(sweep.keys, truths, base.distances, out)).get(variant))
             if ((limit is not None and farther > limit) or less_accurate
                     or (self.stop is not None and self.stop.is_set())):
@@ -238,7 +238,7 @@ class SafetyScreen:
         pooled = [e for es in both.values() for e in es]
         mb, mt = ((statistics.median(e[i] for e in pooled) if pooled else None) for i in (0, 1))
         for variant, (n, vb, vt) in variant_medians(both).items():
-            if variant in tuned.whole and _median_fails((n, vb, vt)):
+            if variant in tuned.whole and median_fails((n, vb, vt)):
                     reasons.append(f"{who} the {n} {variant} safety-sweep frame(s) both read with a median "
                                    f"absolute error of {vt:.2f} %, above {SWEEP_MEDIAN_FACTOR:g} x the base's "
                                    f"{vb:.2f} % + {SWEEP_MEDIAN_SLACK_PCT:g}")
@@ -257,8 +257,9 @@ class SafetyScreen:
         return self._verdict(chosen, rejecting=False)
 
 
-def _median_fails(medians: tuple[int, float, float] | None) -> bool:
-    """Whether a scene variant's (frames both read, base's median, candidate's median) fails the accuracy rule."""
+def median_fails(medians: tuple[int, float, float] | None) -> bool:
+    """Whether a scene variant's (frames both read, base's median, candidate's median) of :func:`variant_medians`
+    fails the accuracy rule (None: no frame both read, nothing to fail)."""
     return medians is not None and medians[2] > median_limit_pct(medians[1])
 
 
