@@ -10,7 +10,7 @@ in each scene variant a median absolute error within the sweep's limit of the ba
 infeasible proposals apart (Optuna's trial constraints) and the choice takes the feasible candidates with a gain
 first (:func:`choice.top_candidates`). Only a candidate that beats the base and every candidate the guide passed
 in the generations before is read (one that does not can win nothing the choice would take first), and a reading
-stops as soon as the candidate fails a rule (:meth:`SearchGuide.read`): a whole read costs about 7 x a fitness on
+stops as soon as the candidate fails a rule (:meth:`SearchGuide.read_all`): a whole read costs about 7 x a fitness on
 8 frames.
 
 The guide leads the search, it judges nothing: its scenes are drawn from other seeds than the safety sweep's, and
@@ -28,10 +28,9 @@ from uav_depth.core.errors import UavDepthError
 from uav_depth.core.params import StereoParams
 
 from uav_depth.tuning.executor import Executor
-from uav_depth.tuning.metrics import is_farther
 from uav_depth.tuning.objective import Evaluation, Task
-from uav_depth.tuning.safety import (SweepFrames, errors_both_read, median_fails, median_limit_pct, variant_medians,
-                                     variant_of)
+from uav_depth.tuning.safety import (SweepFrames, errors_both_read, farther_count, median_fails, median_limit_pct,
+                                     read_farther, variant_medians, variant_of)
 
 #: What a candidate's evaluation holds of its guide reading (its metrics): the guide frames it read farther than
 #: the truth, how many more than the base (the first rule's constraint) and by how many points its worst scene
@@ -44,8 +43,8 @@ CONSTRAINTS = {FARTHER_OVER: "farther", MEDIAN_OVER: "median"}
 
 class SearchGuide:
     """The guide's frames (a :class:`~uav_depth.tuning.safety.SweepFrames` whose frame sets the executor holds)
-    and the sweep's rules on them: :meth:`read_base` once, then :meth:`read` of a candidate; :meth:`constraints`
-    and :meth:`feasible` of its stored evaluation."""
+    and the sweep's rules on them: :meth:`read_base` once, then :meth:`read_all` of candidates;
+    :meth:`constraints` and :meth:`feasible` of a stored evaluation."""
 
     def __init__(self, frames: SweepFrames):
         self.frames = frames
@@ -80,9 +79,6 @@ class SearchGuide:
                 out[i] = d
         return tuple(out)
 
-    def _farther(self, distances: Sequence[float]) -> int:
-        return sum(is_farther(None if math.isnan(d) else d, t) for d, t in zip(distances, self.frames.truths))
-
     def read_base(self, executor: Executor, base: StereoParams, stop: threading.Event | None = None,
                   tick: Callable[[], None] = lambda: None) -> None:
         """Render the guide (or find it in the caller's cache) and read the base on it, once. ``tick()``: after
@@ -99,7 +95,7 @@ class SearchGuide:
         distances = self._distances([got[j] for j in range(len(self._chunks))])
         if isinstance(distances, str):
             raise UavDepthError(f"the base parameters cannot be read on the search guide: {distances}")
-        self._base, self.base_farther = distances, self._farther(distances)
+        self._base, self.base_farther = distances, farther_count(distances, self.frames.truths)
 
     def read_all(self, executor: Executor, candidates: Sequence[Mapping[str, Any]],
                  stop: threading.Event | None = None,
@@ -190,6 +186,6 @@ class _Reading:
         while self.verdict is None and self._cursor in self._got:
             for i, d in zip(g._chunks[self._cursor], self._got.pop(self._cursor).per_frame):
                 self._distances[i] = d
-                self._farther += is_farther(None if math.isnan(d) else d, g.frames.truths[i])
+                self._farther += read_farther(d, g.frames.truths[i])
             self.verdict = g._judge_prefix(self._cursor, self._farther, self._distances)
             self._cursor += 1

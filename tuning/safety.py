@@ -204,7 +204,7 @@ class SafetyScreen:
                 return Reading(tuple(out), read, tuple(whole), ev.reason)
             for i, d in zip(self._chunks[j], ev.per_frame):
                 out[i] = d
-                farther += is_farther(None if math.isnan(d) else d, truths[i])
+                farther += read_farther(d, truths[i])
             read += len(self._chunks[j])
             variant = variant_of(sweep.keys[self._chunks[j][0]])
             left[variant] -= 1
@@ -223,12 +223,12 @@ class SafetyScreen:
         base = self.reading(self.base)
         if base.failed:
             raise UavDepthError(f"the base parameters cannot be read on the safety sweep: {base.failed}")
-        nb = _farther(base, sweep)
+        nb = farther_count(base.distances, sweep.truths)
         tuned = self.reading(params, *((nb, base) if rejecting else ()))
         who = "reads" if rejecting else "the tuned parameters read"
         if tuned.failed:
             return FartherCheck(nb, 0, len(sweep), f"{who} no distance on the safety sweep: {tuned.failed}")
-        nt = _farther(tuned, sweep)
+        nt = farther_count(tuned.distances, sweep.truths)
         reasons = []
         if nt > nb:
             first = f"the first {tuned.read} of " if tuned.read < len(sweep) else ""
@@ -263,8 +263,14 @@ def median_fails(medians: tuple[int, float, float] | None) -> bool:
     return medians is not None and medians[2] > median_limit_pct(medians[1])
 
 
-def _farther(reading: Reading, sweep: SweepFrames) -> int:
-    return sum(is_farther(None if math.isnan(d) else d, t) for d, t in zip(reading.distances, sweep.truths))
+def read_farther(distance_m: float, truth_m: float) -> bool:
+    """Whether a sweep frame was read farther than its truth by more than FARTHER_TOL_PCT (NaN: nothing read)."""
+    return is_farther(None if math.isnan(distance_m) else distance_m, truth_m)
+
+
+def farther_count(distances: Sequence[float], truths: Sequence[float]) -> int:
+    """How many sweep frames were read farther than their truth (:func:`read_farther`)."""
+    return sum(read_farther(d, t) for d, t in zip(distances, truths))
 
 
 def errors_both_read(keys: Sequence[str], truths: Sequence[float], base: Sequence[float],
